@@ -1,0 +1,255 @@
+"""Closed-form SIIS field of one tapered segment (math.md §2).
+
+Segment table layout (one row per segment, built by
+:func:`slicer.field.segment_table`), oriented so the radius grows from ``a``:
+
+====  ===========================================
+col   meaning
+====  ===========================================
+0-2   a, the thinner end (mm)
+3-5   u, unit axis from a to b
+6     L, length (mm)
+7     tau0, radius at a (mm)
+8     delta = (tau1 - tau0) / L >= 0
+9     tau1, radius at b (mm)
+====  ===========================================
+
+``scratch`` arguments are float64 work arrays of at least ``SCRATCH`` entries,
+allocated once per point batch / ray by the caller.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._jit import kernel
+
+SCRATCH = 72
+# columns of the segment table
+AX, AY, AZ, UX, UY, UZ, LEN, TAU0, DELTA, TAU1 = range(10)
+NCOL = 10
+
+
+@kernel
+def support_interval(seg, i, px, py, pz, inv_s2):
+    """Arc-length interval [ta, tb] of segment ``i`` whose support ball holds p.
+
+    Solves ``P(t) = tau(t)^2 - |p - q(t)|^2 / sigma^2 > 0`` (math.md §2.2) in a
+    cancellation-free form: the discriminant is written as
+    ``(tau_foot^2 + c2 * perp^2) / sigma^2`` with ``perp`` the distance to the
+    axis line, so points far along long struts keep full accuracy.
+
+    Returns
+    -------
+    ta, tb : float
+        Clipped to [0, L]; ``tb <= ta`` means empty.
+    root_a, root_b : bool
+        Whether ta (tb) is a root of P rather than a clip at 0 (L).
+    """
+    wx = px - seg[i, AX]
+    wy = py - seg[i, AY]
+    wz = pz - seg[i, AZ]
+    ux = seg[i, UX]
+    uy = seg[i, UY]
+    uz = seg[i, UZ]
+    L = seg[i, LEN]
+    tau0 = seg[i, TAU0]
+    d = seg[i, DELTA]
+    wu = wx * ux + wy * uy + wz * uz
+    qx = wx - wu * ux
+    qy = wy - wu * uy
+    qz = wz - wu * uz
+    perp2 = qx * qx + qy * qy + qz * qz
+    ww = wu * wu + perp2
+    c2 = d * d - inv_s2
+    h = tau0 * d + wu * inv_s2          # c1 / 2
+    c0 = tau0 * tau0 - ww * inv_s2
+    tfoot = tau0 + d * wu
+    disc = (tfoot * tfoot + c2 * perp2) * inv_s2   # (c1^2 - 4 c2 c0) / 4
+    lo = 0.0
+    hi = L
+    root_a = False
+    root_b = False
+    if c2 < 0.0:
+        if disc <= 0.0:
+            return 0.0, -1.0, False, False
+        sq = math.sqrt(disc)
+        q = -(h + sq) if h >= 0.0 else -(h - sq)
+        if q == 0.0:
+            return 0.0, -1.0, False, False
+        r1 = q / c2
+        r2 = c0 / q
+        rlo = min(r1, r2)
+        rhi = max(r1, r2)
+        if rlo > 0.0:
+            lo = rlo
+            root_a = True
+        if rhi < L:
+            hi = rhi
+            root_b = True
+    elif c2 > 0.0:
+        # nested end balls: P > 0 outside its roots; only the thick branch is real
+        if disc > 0.0:
+            sq = math.sqrt(disc)
+            q = -(h + sq) if h >= 0.0 else -(h - sq)
+            if q != 0.0:
+                rhi = max(q / c2, c0 / q)
+            else:
+                rhi = 0.0
+            if rhi > 0.0:
+                lo = rhi
+                root_a = True
+    else:
+        # P linear: 2 h t + c0 > 0
+        if h > 0.0:
+            r = -c0 / (2.0 * h)
+            if r > 0.0:
+                lo = r
+                root_a = True
+        elif h < 0.0:
+            r = -c0 / (2.0 * h)
+            if r < L:
+                hi = r
+                root_b = True
+        elif c0 <= 0.0:
+            return 0.0, -1.0, False, False
+    return lo, hi, root_a, root_b
+
+
+@kernel
+def _poly_mul_quad(src, n_src, r0, r1, r2, dst):
+    """dst[0 : n_src + 2] = src[0 : n_src] * (r0 + r1 y + r2 y^2)."""
+    for j in range(n_src + 2):
+        dst[j] = 0.0
+    for j in range(n_src):
+        c = src[j]
+        dst[j] += c * r0
+        dst[j + 1] += c * r1
+        dst[j + 2] += c * r2
+
+
+@kernel
+def _moments(Y, d, l, nmax, J, Yp):
+    """J[j] = int_0^Y y^j / (1 - d y) dy for j = 0..nmax (math.md §2.4).
+
+    ``Yp`` must hold ``Y^j`` for j = 0..nmax+1.
+    """
+    z = d * Y
+    if d == 0.0:
+        for j in range(nmax + 1):
+            J[j] = Yp[j + 1] / (j + 1)
+    elif z <= 0.5:
+        # series for J[nmax], then the damping downward recurrence
+        s = 0.0
+        zk = 1.0
+        for k in range(200):
+            term = zk / (nmax + k + 1)
+            s += term
+            if term < 1e-17 * s:
+                break
+            zk *= z
+        J[nmax] = Yp[nmax + 1] * s
+        for j in range(nmax, 0, -1):
+            J[j - 1] = d * J[j] + Yp[j] / j
+    else:
+        J[0] = math.log1p(d * l) / d
+        for j in range(1, nmax + 1):
+            J[j] = (J[j - 1] - Yp[j] / j) / d
+
+
+@kernel
+def segment_eval(seg, i, px, py, pz, m, inv_s2, norm, grad, scratch):
+    """Field of segment ``i`` at p, and its gradient if ``grad``.
+
+    Möbius-variable closed form (math.md §2.4): exact for every taper,
+    including constant radius, and integrated only over the clipped support.
+
+    Parameters
+    ----------
+    seg : (n, 10) float64
+        Segment table (module docstring).
+    i : int
+        Row.
+    px, py, pz : float
+        Point (mm).
+    m : int
+        Half the kernel degree.
+    inv_s2 : float
+        1 / sigma^2.
+    norm : float
+        Kernel normalisation N.
+    grad : bool
+        Also compute the gradient.
+    scratch : (>= SCRATCH,) float64
+        Work array.
+
+    Returns
+    -------
+    f, gx, gy, gz : float
+        Field and gradient (gradient zero when ``grad`` is false).
+    """
+    ta, tb, root_a, root_b = support_interval(seg, i, px, py, pz, inv_s2)
+    if not tb > ta:
+        return 0.0, 0.0, 0.0, 0.0
+    ux = seg[i, UX]
+    uy = seg[i, UY]
+    uz = seg[i, UZ]
+    tau0 = seg[i, TAU0]
+    d = seg[i, DELTA]
+    taua = tau0 + d * ta
+    wx = px - seg[i, AX] - ta * ux
+    wy = py - seg[i, AY] - ta * uy
+    wz = pz - seg[i, AZ] - ta * uz
+    ww = wx * wx + wy * wy + wz * wz
+    wu = wx * ux + wy * uy + wz * uz
+    p0 = 1.0 - ww * inv_s2 / (taua * taua)
+    p1 = 2.0 * (d + wu * inv_s2 / taua)
+    p2 = d * d - inv_s2
+    l = (tb - ta) / taua
+    Y = l / (1.0 + d * l)
+    if root_a:
+        p0 = 0.0          # R(0) = 0 exactly at a support root
+    r0 = p0
+    r1 = p1 - 2.0 * d * p0
+    r2 = p2 - d * p1 + d * d * p0
+    if root_b:
+        r1 = -(r0 / Y + r2 * Y)   # R(Y) = 0 exactly at a support root
+    nmax = 2 * m
+    # scratch layout: [0:17] R^(m-1), [17:34] R^m, [34:51] J, [51:70] Y^j
+    pa = scratch[0:17]
+    pb = scratch[17:34]
+    J = scratch[34:51]
+    Yp = scratch[51:70]
+    Yp[0] = 1.0
+    for j in range(1, nmax + 3):
+        Yp[j] = Yp[j - 1] * Y
+    pa[0] = 1.0
+    deg = 0
+    for _ in range(m - 1):
+        _poly_mul_quad(pa, deg + 1, r0, r1, r2, pb)
+        deg += 2
+        for j in range(deg + 1):
+            pa[j] = pb[j]
+    # pa = R^(m-1) (degree 2m-2), pb = R^m (degree 2m)
+    _poly_mul_quad(pa, deg + 1, r0, r1, r2, pb)
+    _moments(Y, d, l, nmax, J, Yp)
+    f = 0.0
+    for j in range(nmax + 1):
+        f += pb[j] * J[j]
+    f *= norm
+    if not grad:
+        return f, 0.0, 0.0, 0.0
+    h0 = 0.0
+    h1 = 0.0
+    for j in range(nmax - 1):
+        c = pa[j]
+        t1 = Yp[j + 1] / (j + 1)
+        t2 = Yp[j + 2] / (j + 2)
+        h0 += c * (t1 - d * t2)
+        h1 += c * t2
+    s = -2.0 * m * norm * inv_s2 / (taua * taua)
+    gx = s * (wx * h0 - taua * ux * h1)
+    gy = s * (wy * h0 - taua * uy * h1)
+    gz = s * (wz * h0 - taua * uz * h1)
+    return f, gx, gy, gz

@@ -1,0 +1,69 @@
+"""Field evaluation at arbitrary points through a uniform grid of supports."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import prange
+
+from .._jit import parallel_kernel
+from .field import SCRATCH, segment_eval
+
+
+@parallel_kernel
+def field_at_points(points, seg, offsets, ids, origin, cell, dims, m, inv_s2, norm, grad):
+    """Sum of segment fields at each point, visiting only the segments binned
+    in the point's grid cell (those whose support box can reach it).
+
+    Parameters
+    ----------
+    points : (k, 3) float64, mm
+    seg : (n, 10) float64
+        Segment table.
+    offsets, ids : int64
+        CSR cell lists from :func:`slicer._kernels.binning.bin_boxes`.
+    origin, cell : (3,) float64
+    dims : (3,) int64
+    m : int
+        Half the kernel degree.
+    inv_s2, norm : float
+        1/sigma^2 and the kernel normalisation.
+    grad : bool
+
+    Returns
+    -------
+    f : (k,) float64
+    g : (k, 3) float64
+        Zeros unless ``grad``.
+    """
+    k = points.shape[0]
+    f = np.zeros(k)
+    g = np.zeros((k, 3))
+    nchunk = (k + 255) // 256
+    for c in prange(nchunk):
+        scratch = np.empty(SCRATCH)
+        for p in range(c * 256, min(k, (c + 1) * 256)):
+            px = points[p, 0]
+            py = points[p, 1]
+            pz = points[p, 2]
+            ix = int(math.floor((px - origin[0]) / cell[0]))
+            iy = int(math.floor((py - origin[1]) / cell[1]))
+            iz = int(math.floor((pz - origin[2]) / cell[2]))
+            if ix < 0 or iy < 0 or iz < 0 or ix >= dims[0] or iy >= dims[1] or iz >= dims[2]:
+                continue
+            cidx = (iz * dims[1] + iy) * dims[0] + ix
+            sf = 0.0
+            sx = 0.0
+            sy = 0.0
+            sz = 0.0
+            for r in range(offsets[cidx], offsets[cidx + 1]):
+                fi, gx, gy, gz = segment_eval(seg, ids[r], px, py, pz, m, inv_s2, norm, grad, scratch)
+                sf += fi
+                sx += gx
+                sy += gy
+                sz += gz
+            f[p] = sf
+            g[p, 0] = sx
+            g[p, 1] = sy
+            g[p, 2] = sz
+    return f, g
