@@ -1,0 +1,242 @@
+"""Ray versus one segment's support: entry/exit, the pre-segmentation cut and
+the data of the per-primitive directional Lipschitz bound (math.md §3, §4.2).
+
+The ray is ``r(t) = o + t d`` with ``|d| = 1``. All quantities are computed
+from components perpendicular to ``d`` taken explicitly, so an axis-aligned
+ray (slicing: ``d = e_z``) has no cancellation at all.
+"""
+from __future__ import annotations
+
+import math
+
+from .._jit import kernel
+from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
+
+# layout of the per-hit record returned in ``out`` by ray_support
+H_TIN, H_TOUT, H_TSTAR, H_LIP, H_S0, H_S1, H_TP0, H_TP1 = range(8)
+NHIT = 8
+
+
+@kernel
+def kprime_abs(x, n, sigma, norm):
+    """|k'(x)| of the kernel k(x) = N (1 - x^2/sigma^2)^(n/2)."""
+    if x >= sigma:
+        return 0.0
+    a = 1.0 - x * x / (sigma * sigma)
+    return norm * n * x / (sigma * sigma) * a ** (n // 2 - 1)
+
+
+@kernel
+def kprime_max(n, sigma, norm):
+    """max |k'| = (n/sqrt(n-1)) (1 - 1/(n-1))^(n/2-1) N/sigma (EG22, math.md §1.3)."""
+    if n == 2:
+        return 2.0 * norm / sigma
+    return n / math.sqrt(n - 1.0) * (1.0 - 1.0 / (n - 1.0)) ** (n // 2 - 1) * norm / sigma
+
+
+@kernel
+def _quad_neg_interval(A, B, C):
+    """Sub-interval of [0, 1] where A s^2 + 2 B s + C < 0, assuming the
+    valid branch is the one on the growing-radius side when A < 0.
+
+    Returns (s0, s1); empty when s1 <= s0.
+    """
+    disc = B * B - A * C
+    if A > 0.0:
+        if disc <= 0.0:
+            return 0.0, -1.0
+        sq = math.sqrt(disc)
+        q = -(B + sq) if B >= 0.0 else -(B - sq)
+        if q == 0.0:
+            return 0.0, -1.0
+        r1 = q / A
+        r2 = C / q
+        return max(0.0, min(r1, r2)), min(1.0, max(r1, r2))
+    if A < 0.0:
+        if disc <= 0.0:
+            return 0.0, 1.0
+        sq = math.sqrt(disc)
+        q = -(B + sq) if B >= 0.0 else -(B - sq)
+        if q == 0.0:
+            return 0.0, 1.0
+        rhi = max(q / A, C / q)
+        return max(0.0, rhi), 1.0
+    if B > 0.0:
+        return 0.0, min(1.0, -C / (2.0 * B))
+    if B < 0.0:
+        return max(0.0, -C / (2.0 * B)), 1.0
+    if C < 0.0:
+        return 0.0, 1.0
+    return 0.0, -1.0
+
+
+@kernel
+def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, out):
+    """Intersect ray ``o + t d`` with the support of segment ``i``.
+
+    Parameters
+    ----------
+    seg : (m, 10) float64
+        Segment table (:mod:`slicer._kernels.field`).
+    i : int
+    ox, oy, oz, dx, dy, dz : float
+        Ray origin (mm) and unit direction.
+    n : int
+        Kernel degree; ``sigma``, ``norm``: support factor and normalisation.
+    kmax : float
+        max |k'| (:func:`kprime_max`).
+    out : (8,) float64
+        Filled on a hit: t_in, t_out (padded outward), t* (cut), Lipschitz
+        factor C (so that |f'| <= C * max(|D+|, |D-|) on a piece), skeleton
+        range s0, s1, and the projection t_proj(s) = tp0 + s tp1.
+
+    Returns
+    -------
+    bool
+        Whether the ray meets the (open) support.
+    """
+    ux = seg[i, UX]
+    uy = seg[i, UY]
+    uz = seg[i, UZ]
+    L = seg[i, LEN]
+    tau0 = seg[i, TAU0]
+    dtau = seg[i, DELTA] * L
+    Dx = L * ux
+    Dy = L * uy
+    Dz = L * uz
+    wx = seg[i, AX] - ox
+    wy = seg[i, AY] - oy
+    wz = seg[i, AZ] - oz
+    wd = wx * dx + wy * dy + wz * dz
+    Dd = Dx * dx + Dy * dy + Dz * dz
+    # perpendicular parts (exact for axis-aligned rays)
+    wpx = wx - wd * dx
+    wpy = wy - wd * dy
+    wpz = wz - wd * dz
+    Dpx = Dx - Dd * dx
+    Dpy = Dy - Dd * dy
+    Dpz = Dz - Dd * dz
+    s2 = sigma * sigma
+    Ap = Dpx * Dpx + Dpy * Dpy + Dpz * Dpz
+    Bp = wpx * Dpx + wpy * Dpy + wpz * Dpz
+    Cp = wpx * wpx + wpy * wpy + wpz * wpz
+    A = Ap - s2 * dtau * dtau
+    B = Bp - s2 * tau0 * dtau
+    C = Cp - s2 * tau0 * tau0
+    s0, s1 = _quad_neg_interval(A, B, C)
+    if not s1 > s0:
+        return False
+    # entry / exit: extremes of tc(s) -/+ sqrt(-Q(s)) over [s0, s1]
+    E = A + Dd * Dd
+    t_in = math.inf
+    t_out = -math.inf
+    if E <= 0.0:
+        # nested end balls: the support is the ball at the thick end (s = 1)
+        q = -(A + 2.0 * B + C)
+        if q <= 0.0:
+            return False
+        r = math.sqrt(q)
+        t_in = wd + Dd - r
+        t_out = wd + Dd + r
+    else:
+        for c in range(4):
+            if c == 0:
+                s = s0
+            elif c == 1:
+                s = s1
+            else:
+                # stationary points: A E s^2 + 2 B E s + (B^2 + Dd^2 C) = 0
+                a2 = A * E
+                b2 = B * E
+                c2 = B * B + Dd * Dd * C
+                if a2 == 0.0:
+                    if c == 3 or b2 == 0.0:
+                        continue
+                    s = -c2 / (2.0 * b2)
+                else:
+                    disc = b2 * b2 - a2 * c2
+                    if disc < 0.0:
+                        continue
+                    sq = math.sqrt(disc)
+                    s = (-b2 - sq) / a2 if c == 2 else (-b2 + sq) / a2
+                if not (s > s0 and s < s1):
+                    continue
+            q = -((A * s + 2.0 * B) * s + C)
+            if q < 0.0:
+                q = 0.0
+            r = math.sqrt(q)
+            tc = wd + s * Dd
+            if tc - r < t_in:
+                t_in = tc - r
+            if tc + r > t_out:
+                t_out = tc + r
+    pad = 1e-9 * (abs(t_in) + abs(t_out) + L + sigma * (tau0 + dtau))
+    out[H_TIN] = t_in - pad
+    out[H_TOUT] = t_out + pad
+    # pre-segmentation cut: argmin of the homothetic distance along the line
+    best_s = 0.0
+    best_r = Cp / (tau0 * tau0)
+    t1 = tau0 + dtau
+    r1 = (Ap + 2.0 * Bp + Cp) / (t1 * t1)
+    if r1 < best_r:
+        best_s = 1.0
+        best_r = r1
+    den = Ap * tau0 - Bp * dtau
+    if den != 0.0:
+        ss = (dtau * Cp - Bp * tau0) / den
+        if ss > 0.0 and ss < 1.0:
+            ts = tau0 + ss * dtau
+            rs = ((Ap * ss + 2.0 * Bp) * ss + Cp) / (ts * ts)
+            if rs < best_r:
+                best_s = ss
+                best_r = rs
+    out[H_TSTAR] = wd + best_s * Dd
+    xmin = math.sqrt(max(best_r, 0.0))
+    if xmin <= sigma / math.sqrt(n - 1.0):
+        kp = kmax
+    else:
+        kp = kprime_abs(xmin, n, sigma, norm)
+    tmin = tau0 + s0 * dtau
+    out[H_LIP] = kp * L / (tmin * tmin)
+    out[H_S0] = s0
+    out[H_S1] = s1
+    out[H_TP0] = wd
+    out[H_TP1] = Dd
+    return True
+
+
+@kernel
+def lipschitz(rec, ta, tb):
+    """Bound on |f'(t)| for t in [ta, tb] from a hit record (math.md §4.2).
+
+    Parameters
+    ----------
+    rec : (8,) float64
+        Record filled by :func:`ray_support`.
+    ta, tb : float
+        Piece of the ray.
+    """
+    s0 = rec[H_S0]
+    s1 = rec[H_S1]
+    tp0 = rec[H_TP0]
+    tp1 = rec[H_TP1]
+    # |D+| = |{s in S : tp(s) > ta}|, |D-| = |{s in S : tp(s) < tb}|
+    if tp1 > 0.0:
+        sa = (ta - tp0) / tp1
+        sb = (tb - tp0) / tp1
+        dp = s1 - max(s0, sa)
+        dm = min(s1, sb) - s0
+    elif tp1 < 0.0:
+        sa = (ta - tp0) / tp1
+        sb = (tb - tp0) / tp1
+        dp = min(s1, sa) - s0
+        dm = s1 - max(s0, sb)
+    else:
+        dp = (s1 - s0) if tp0 > ta else 0.0
+        dm = (s1 - s0) if tp0 < tb else 0.0
+    w = max(dp, dm)
+    if w < 0.0:
+        w = 0.0
+    if w > s1 - s0:
+        w = s1 - s0
+    return rec[H_LIP] * w

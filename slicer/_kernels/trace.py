@@ -1,0 +1,493 @@
+"""Slicing tracer: classify every voxel centre of vertical rays (EG22 §3-4).
+
+A *bucket* is a B x B block of pixel columns with the list of segments whose
+support footprint touches it, sorted by the support's lowest z. For each ray
+(pixel column) the kernels produce *runs*: half-open ranges ``[k0, k1)`` of
+layer indices whose voxel centres are inside (``F >= 1``), in increasing
+order. Runs are the compact output of a tile; layers are assembled from them
+later (:mod:`slicer._kernels.layers`), so the voxel volume never exists.
+
+Three methods share buckets, field and output:
+
+* ``trace_interval``: per-primitive interval bounds + directional Lipschitz
+  bounds, pre-segmentation at t_in, t_out and t*, bisection aligned to layer
+  centres; every centre is classified exactly as ``F(centre) >= 1``.
+* ``trace_sampling``: the field at every centre, over a z-sorted active window
+  of the bucket list (Liu et al. 2021).
+* ``trace_segment``: segment tracing on the directional Lipschitz bound
+  (Galin et al. 2020), stepping over centres the bound proves unambiguous and
+  evaluating the rest.
+
+Status codes: 0 ok, 1 run buffer full (caller retries with more room),
+2 hit buffer too small.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import prange
+
+from .._jit import kernel, parallel_kernel
+from .field import SCRATCH, segment_eval
+from .raysupport import H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz, ray_support
+
+OK = 0
+RUNS_FULL = 1
+
+MAX_STACK = 160
+
+
+@kernel
+def _first_centre(t, z0, h, K):
+    """Smallest k with z0 + k h >= t (clamped to [0, K])."""
+    k = int(math.ceil((t - z0) / h))
+    if k < 0:
+        k = 0
+    while k > 0 and z0 + (k - 1) * h >= t:
+        k -= 1
+    while k < K and z0 + k * h < t:
+        k += 1
+    return k
+
+
+@kernel
+def _emit(k0, k1, inside, rk0, rk1, nrun, cap):
+    """Append centres k0..k1 (inclusive) with one class to the ray's runs.
+
+    Returns the new run count, or -1 when the buffer is full.
+    """
+    if not inside or k1 < k0:
+        return nrun
+    if nrun > 0 and rk1[nrun - 1] == k0:
+        rk1[nrun - 1] = k1 + 1
+        return nrun
+    if nrun >= cap:
+        return -1
+    rk0[nrun] = k0
+    rk1[nrun] = k1 + 1
+    return nrun + 1
+
+
+@kernel
+def _eval_set(seg, hprim, sarr, ns, px, py, z, m, inv_s2, norm, scratch, fo, fpo):
+    """f and df/dz of the ns primitives sarr[:ns] at (px, py, z); returns the sum."""
+    tot = 0.0
+    for s in range(ns):
+        f, gx, gy, gz = segment_eval(seg, hprim[sarr[s]], px, py, z, m, inv_s2, norm, True, scratch)
+        fo[s] = f
+        fpo[s] = gz
+        tot += f
+    return tot
+
+
+@kernel
+def _ray_hits(seg, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order):
+    """Hit records of the bucket's segments ids[i0:i1] with the vertical ray
+    at (px, py), kept if they reach [zlo, zhi]; returns the count, sorted by t_in
+    into ``order``."""
+    nh = 0
+    for r in range(i0, i1):
+        if ray_support(seg, ids[r], px, py, 0.0, 0.0, 0.0, 1.0, n, sigma, norm, kmax, hrec[nh]):
+            if hrec[nh, H_TOUT] > zlo and hrec[nh, H_TIN] < zhi:
+                hprim[nh] = ids[r]
+                nh += 1
+    # insertion sort by t_in (lists are short and nearly sorted by zmin)
+    for a in range(nh):
+        order[a] = a
+    for a in range(1, nh):
+        v = order[a]
+        key = hrec[v, H_TIN]
+        b = a - 1
+        while b >= 0 and hrec[order[b], H_TIN] > key:
+            order[b + 1] = order[b]
+            b -= 1
+        order[b + 1] = v
+    return nh
+
+
+@kernel
+def _sort_unique(vals, nv):
+    """Sort vals[:nv] in place and drop duplicates; returns the new count."""
+    for a in range(1, nv):
+        v = vals[a]
+        b = a - 1
+        while b >= 0 and vals[b] > v:
+            vals[b + 1] = vals[b]
+            b -= 1
+        vals[b + 1] = v
+    if nv == 0:
+        return 0
+    w = 1
+    for a in range(1, nv):
+        if vals[a] != vals[w - 1]:
+            vals[w] = vals[a]
+            w += 1
+    return w
+
+
+@kernel
+def _piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
+    """Interval [Flo, Fhi] of the sum of the active primitives on [ta, tb]."""
+    lo = 0.0
+    hi = 0.0
+    for s in range(ns):
+        f0 = fa[s]
+        f1 = fb[s]
+        d0 = fpa[s]
+        d1 = fpb[s]
+        if not strict and d1 > 0.0 and not d0 < 0.0:
+            lo += f0
+            hi += f1
+        elif not strict and d0 < 0.0 and not d1 > 0.0:
+            lo += f1
+            hi += f0
+        else:
+            K = lipschitz(hrec[sarr[s]], ta, tb)
+            w = K * (tb - ta)
+            hi += 0.5 * (f0 + f1 + w)
+            if strict:
+                lo += max(0.0, 0.5 * (f0 + f1 - w))
+            else:
+                lo += min(f0, f1)
+    return lo, hi
+
+
+@kernel
+def trace_ray_interval(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict,
+                       scratch, hprim, hrec, order, bps, sarr, cur_f, cur_fp, st_f, st_fp,
+                       st_kind, st_t, st_k0, st_k1, rk0, rk1, cap):
+    """Classify the K voxel centres of one ray (interval method).
+
+    Returns
+    -------
+    nrun : int
+        Number of runs written to rk0/rk1 (-1 when ``cap`` was too small).
+    nevals : int
+        Primitive evaluations performed.
+    """
+    m = n // 2
+    inv_s2 = 1.0 / (sigma * sigma)
+    zlo = z0 - 0.5 * h
+    zhi = z0 + (K - 0.5) * h
+    nh = _ray_hits(seg, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
+    nrun = 0
+    nev = 0
+    a = 0
+    while a < nh:
+        # cluster of overlapping supports
+        cs = hrec[order[a], H_TIN]
+        ce = hrec[order[a], H_TOUT]
+        b = a + 1
+        while b < nh and hrec[order[b], H_TIN] < ce:
+            ce = max(ce, hrec[order[b], H_TOUT])
+            b += 1
+        kc0 = _first_centre(cs, z0, h, K)
+        kc1 = _first_centre(ce, z0, h, K) - 1
+        if kc1 >= kc0:
+            # breakpoints: t_in, t_out and the cut t* of every member
+            nb = 0
+            for c in range(a, b):
+                r = order[c]
+                bps[nb] = hrec[r, H_TIN]
+                bps[nb + 1] = hrec[r, H_TOUT]
+                nb += 2
+                ts = hrec[r, H_TSTAR]
+                if ts > hrec[r, H_TIN] and ts < hrec[r, H_TOUT]:
+                    bps[nb] = ts
+                    nb += 1
+            nb = _sort_unique(bps, nb)
+            for j in range(nb - 1):
+                ta = bps[j]
+                tb = bps[j + 1]
+                k0 = _first_centre(ta, z0, h, K)
+                k1 = _first_centre(tb, z0, h, K) - 1
+                if k1 < k0:
+                    continue
+                ns = 0
+                for c in range(a, b):
+                    r = order[c]
+                    if hrec[r, H_TIN] < tb and hrec[r, H_TOUT] > ta:
+                        sarr[ns] = r
+                        ns += 1
+                if ns == 0:
+                    continue
+                fcur = _eval_set(seg, hprim, sarr, ns, px, py, ta, m, inv_s2, norm, scratch, cur_f, cur_fp)
+                _eval_set(seg, hprim, sarr, ns, px, py, tb, m, inv_s2, norm, scratch, st_f[0], st_fp[0])
+                nev += 2 * ns
+                tcur = ta
+                sp = 1
+                st_kind[0] = 0
+                st_t[0] = tb
+                st_k0[0] = k0
+                st_k1[0] = k1
+                while sp > 0:
+                    sp -= 1
+                    p = sp
+                    if st_kind[p] == 1:
+                        nrun = _emit(st_k0[p], st_k0[p], st_k1[p] == 1, rk0, rk1, nrun, cap)
+                        if nrun < 0:
+                            return -1, nev
+                        continue
+                    e_t = st_t[p]
+                    q0 = st_k0[p]
+                    q1 = st_k1[p]
+                    done = False
+                    if q1 < q0:
+                        done = True
+                    else:
+                        lo, hi = _piece_bounds(hrec, sarr, ns, cur_f, cur_fp, st_f[p], st_fp[p],
+                                               tcur, e_t, strict)
+                        pad = 1e-10 * (1.0 + abs(hi))
+                        if lo > 1.0 + pad:
+                            nrun = _emit(q0, q1, True, rk0, rk1, nrun, cap)
+                            done = True
+                        elif hi < 1.0 - pad:
+                            done = True
+                        elif z0 + q0 * h == tcur:
+                            # the first centre sits on the left end: its value is known
+                            nrun = _emit(q0, q0, fcur >= 1.0, rk0, rk1, nrun, cap)
+                            st_k0[p] = q0 + 1
+                            sp += 1
+                            if nrun < 0:
+                                return -1, nev
+                            continue
+                    if nrun < 0:
+                        return -1, nev
+                    if done:
+                        for s in range(ns):
+                            cur_f[s] = st_f[p, s]
+                            cur_fp[s] = st_fp[p, s]
+                        fcur = 0.0
+                        for s in range(ns):
+                            fcur += cur_f[s]
+                        tcur = e_t
+                        continue
+                    # split at the middle centre, which is classified by its value
+                    km = (q0 + q1) // 2
+                    zm = z0 + km * h
+                    if sp + 3 > st_kind.shape[0]:
+                        # cannot happen for K < 2^70; keep the kernel total anyway
+                        return -1, nev
+                    # right part keeps slot p (its right-end data are already there)
+                    st_k0[p] = km + 1
+                    fm = _eval_set(seg, hprim, sarr, ns, px, py, zm, m, inv_s2, norm, scratch,
+                                   st_f[p + 2], st_fp[p + 2])
+                    nev += ns
+                    st_kind[p + 1] = 1
+                    st_k0[p + 1] = km
+                    st_k1[p + 1] = 1 if fm >= 1.0 else 0
+                    st_kind[p + 2] = 0
+                    st_t[p + 2] = zm
+                    st_k0[p + 2] = q0
+                    st_k1[p + 2] = km - 1
+                    sp = p + 3
+        a = b
+    return nrun, nev
+
+
+@kernel
+def trace_ray_sampling(seg, ids, i0, i1, zmin, zmax, px, py, z0, h, K, m, inv_s2, norm,
+                       scratch, active, rk0, rk1, cap):
+    """Classify the K centres of one ray by evaluating the field at each,
+    over the z-sorted active window of the bucket list ids[i0:i1]."""
+    nrun = 0
+    nev = 0
+    na = 0
+    nxt = i0
+    for k in range(K):
+        z = z0 + k * h
+        while nxt < i1 and zmin[ids[nxt]] <= z:
+            active[na] = ids[nxt]
+            na += 1
+            nxt += 1
+        w = 0
+        for q in range(na):
+            if zmax[active[q]] >= z:
+                active[w] = active[q]
+                w += 1
+        na = w
+        if na == 0:
+            if nxt >= i1:
+                break
+            continue
+        f = 0.0
+        for q in range(na):
+            fi, gx, gy, gz = segment_eval(seg, active[q], px, py, z, m, inv_s2, norm, False, scratch)
+            f += fi
+        nev += na
+        nrun = _emit(k, k, f >= 1.0, rk0, rk1, nrun, cap)
+        if nrun < 0:
+            return -1, nev
+    return nrun, nev
+
+
+@kernel
+def trace_ray_segment(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax,
+                      scratch, hprim, hrec, order, rk0, rk1, cap):
+    """Classify the K centres of one ray with segment tracing (GGPP20).
+
+    From t with value F(t), no crossing lies within |F(t) - 1| / lambda, where
+    lambda bounds |F'| on [t, t + s] (sum of per-primitive directional
+    Lipschitz bounds); every centre in that safe step takes the class of F(t).
+    When the step would not reach the next unclassified centre, the field is
+    evaluated at that centre instead, so centres are classified exactly.
+    """
+    m = n // 2
+    inv_s2 = 1.0 / (sigma * sigma)
+    zlo = z0 - 0.5 * h
+    zhi = z0 + (K - 0.5) * h
+    nh = _ray_hits(seg, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
+    nrun = 0
+    nev = 0
+    a = 0
+    while a < nh:
+        cs = hrec[order[a], H_TIN]
+        ce = hrec[order[a], H_TOUT]
+        b = a + 1
+        while b < nh and hrec[order[b], H_TIN] < ce:
+            ce = max(ce, hrec[order[b], H_TOUT])
+            b += 1
+        k = _first_centre(cs, z0, h, K)
+        kend = _first_centre(ce, z0, h, K)
+        t = cs
+        s = ce - cs
+        while k < kend:
+            # field at t over the members whose support holds t
+            f = 0.0
+            for c in range(a, b):
+                r = order[c]
+                if hrec[r, H_TIN] < t and hrec[r, H_TOUT] > t:
+                    fi, gx, gy, gz = segment_eval(seg, hprim[r], px, py, t, m, inv_s2, norm, False, scratch)
+                    f += fi
+                    nev += 1
+            lam = 0.0
+            for c in range(a, b):
+                r = order[c]
+                if hrec[r, H_TIN] < t + s and hrec[r, H_TOUT] > t:
+                    lam += lipschitz(hrec[r], t, t + s)
+            step = abs(f - 1.0) / lam if lam > 0.0 else math.inf
+            if step > s:
+                step = s
+            tn = t + step
+            k1 = _first_centre(tn, z0, h, K)   # centres in [t, tn) are safe
+            zk = z0 + k * h
+            if k1 > k and zk >= t:
+                nrun = _emit(k, k1 - 1, f >= 1.0, rk0, rk1, nrun, cap)
+                if nrun < 0:
+                    return -1, nev
+                k = k1
+                t = tn
+                s = 1.5 * step if step > 0.0 else h
+            else:
+                # too close to a crossing to step over the next centre: evaluate it
+                fz = 0.0
+                for c in range(a, b):
+                    r = order[c]
+                    if hrec[r, H_TIN] < zk and hrec[r, H_TOUT] > zk:
+                        fi, gx, gy, gz = segment_eval(seg, hprim[r], px, py, zk, m, inv_s2, norm, False, scratch)
+                        fz += fi
+                        nev += 1
+                nrun = _emit(k, k, fz >= 1.0, rk0, rk1, nrun, cap)
+                if nrun < 0:
+                    return -1, nev
+                k += 1
+                t = zk
+                s = max(2.0 * h, 1.5 * step)
+        a = b
+    return nrun, nev
+
+
+@parallel_kernel
+def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, zmin, zmax,
+                  x0, y0, pxs, pys, z0, h, K, n, sigma, norm, kmax, strict, max_list,
+                  cap, ray_nrun, run_k0, run_k1, stats):
+    """Trace every ray of the given buckets in parallel.
+
+    Parameters
+    ----------
+    method : int
+        0 interval, 1 sampling, 2 segment tracing.
+    buckets : (nb,) int64
+        Flat bucket indices (``by * nbx + bx``) to trace.
+    B : int
+        Bucket edge in pixels; W, H image size in pixels.
+    bucket_off, ids : int64
+        CSR bucket lists, each sorted by support zmin.
+    seg : (m, 10) float64
+        Segment table; zmin, zmax (m,) support z-range (sampling window).
+    x0, y0, pxs, pys, z0, h : float
+        Centre of voxel (0, 0, 0), pixel sizes and layer height (rows run
+        toward -y).
+    K : int
+        Number of layers.
+    max_list : int
+        Longest bucket list (sizes the per-ray scratch).
+    cap : int
+        Run capacity per bucket.
+    ray_nrun : (nb, B*B) int64, out
+        Runs per ray (row-major inside the bucket).
+    run_k0, run_k1 : (nb, cap) int32, out
+        Runs of all the bucket's rays, ray after ray.
+    stats : (nb, 2) int64, out
+        [status, primitive evaluations] per bucket.
+    """
+    nb = buckets.shape[0]
+    for q in prange(nb):
+        bidx = buckets[q]
+        by = bidx // nbx
+        bx = bidx - by * nbx
+        i0 = bucket_off[bidx]
+        i1 = bucket_off[bidx + 1]
+        nl = max(i1 - i0, 1)
+        scratch = np.empty(SCRATCH)
+        hprim = np.empty(nl, dtype=np.int64)
+        hrec = np.empty((nl, NHIT))
+        order = np.empty(nl, dtype=np.int64)
+        bps = np.empty(3 * nl + 2)
+        sarr = np.empty(nl, dtype=np.int64)
+        cur_f = np.empty(nl)
+        cur_fp = np.empty(nl)
+        st_f = np.empty((MAX_STACK, nl))
+        st_fp = np.empty((MAX_STACK, nl))
+        st_kind = np.empty(MAX_STACK, dtype=np.int64)
+        st_t = np.empty(MAX_STACK)
+        st_k0 = np.empty(MAX_STACK, dtype=np.int64)
+        st_k1 = np.empty(MAX_STACK, dtype=np.int64)
+        active = np.empty(nl, dtype=np.int64)
+        used = 0
+        nev_tot = 0
+        status = OK
+        for ly in range(B):
+            j = by * B + ly
+            for lx in range(B):
+                i = bx * B + lx
+                lr = ly * B + lx
+                ray_nrun[q, lr] = 0
+                if i >= W or j >= H or i1 == i0 or status != OK:
+                    continue
+                px = x0 + i * pxs
+                py = y0 - j * pys
+                rk0 = run_k0[q, used:]
+                rk1 = run_k1[q, used:]
+                room = cap - used
+                if method == 0:
+                    nr, ne = trace_ray_interval(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
+                                                kmax, strict, scratch, hprim, hrec, order, bps, sarr,
+                                                cur_f, cur_fp, st_f, st_fp, st_kind, st_t, st_k0,
+                                                st_k1, rk0, rk1, room)
+                elif method == 1:
+                    nr, ne = trace_ray_sampling(seg, ids, i0, i1, zmin, zmax, px, py, z0, h, K,
+                                                n // 2, 1.0 / (sigma * sigma), norm, scratch,
+                                                active, rk0, rk1, room)
+                else:
+                    nr, ne = trace_ray_segment(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
+                                               kmax, scratch, hprim, hrec, order, rk0, rk1, room)
+                nev_tot += ne
+                if nr < 0:
+                    status = RUNS_FULL
+                    continue
+                ray_nrun[q, lr] = nr
+                used += nr
+        stats[q, 0] = status
+        stats[q, 1] = nev_tot

@@ -1,0 +1,142 @@
+"""The voxel grid of a slicing job: pixel sizes, layer height, placement."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .errors import GridError
+
+#: refuse jobs larger than this many voxels before any work starts
+MAX_VOXELS = 10**12
+
+
+@dataclass(frozen=True)
+class SliceGrid:
+    """Voxel grid with centres ``(x0 + i px, y0 - j py, z0 + k h)``.
+
+    Columns ``i`` run toward +x, rows ``j`` toward -y (row 0 is the top of an
+    image seen from above), layers ``k`` toward +z.
+
+    Parameters
+    ----------
+    origin : (3,) float64, mm
+        Centre of voxel (0, 0, 0).
+    pixel_size : (2,) float64, mm
+        Pixel pitch along x and y.
+    layer_height : float, mm
+    width, height, layers : int
+        Columns, rows and layers.
+    """
+
+    origin: tuple[float, float, float]
+    pixel_size: tuple[float, float]
+    layer_height: float
+    width: int
+    height: int
+    layers: int
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """(layers, height, width)."""
+        return (self.layers, self.height, self.width)
+
+    @property
+    def n_voxels(self) -> int:
+        return self.width * self.height * self.layers
+
+    def centres_x(self) -> np.ndarray:
+        """(width,) float64: x of each column's centres."""
+        return self.origin[0] + np.arange(self.width) * self.pixel_size[0]
+
+    def centres_y(self) -> np.ndarray:
+        """(height,) float64: y of each row's centres."""
+        return self.origin[1] - np.arange(self.height) * self.pixel_size[1]
+
+    def centres_z(self) -> np.ndarray:
+        """(layers,) float64: z of each layer's centres."""
+        return self.origin[2] + np.arange(self.layers) * self.layer_height
+
+    def sub(self, i0: int, j0: int, k0: int, width: int, height: int, layers: int) -> "SliceGrid":
+        """The sub-grid starting at column i0, row j0, layer k0 (same spacing)."""
+        px, py = self.pixel_size
+        o = (self.origin[0] + i0 * px, self.origin[1] - j0 * py, self.origin[2] + k0 * self.layer_height)
+        return replace(self, origin=o, width=width, height=height, layers=layers)
+
+    def to_dict(self) -> dict:
+        return {
+            "width": self.width, "height": self.height, "layers": self.layers,
+            "pixel_size": list(self.pixel_size), "layer_height": self.layer_height,
+            "origin": list(self.origin),
+        }
+
+
+def _positive(name: str, value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise GridError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise GridError(f"{name} must be a finite number > 0, got {value!r}")
+    return v
+
+
+def make_grid(support_box: np.ndarray, pixel_size: float, pixel_size_y: float | None = None,
+              layer_height: float | None = None, bounds=None) -> SliceGrid:
+    """Build the grid of a job.
+
+    Parameters
+    ----------
+    support_box : (2, 3) float64, mm
+        Box that contains the whole surface (:meth:`Skeleton.support_bounds`).
+    pixel_size : float, mm
+        Pixel pitch along x (and y unless ``pixel_size_y``).
+    pixel_size_y : float, optional, mm
+    layer_height : float, optional, mm
+        Defaults to ``pixel_size``.
+    bounds : (6,) float, optional, mm
+        ``X0 Y0 Z0 X1 Y1 Z1``: the voxels cover exactly this box (voxel
+        centres at half a pixel inside its faces). Default: the support box
+        plus one voxel of margin, on a lattice aligned to multiples of the
+        pixel size and layer height.
+
+    Raises
+    ------
+    GridError
+        Non-positive or non-finite sizes, an empty box, or more than
+        ``MAX_VOXELS`` voxels.
+    """
+    px = _positive("pixel size", pixel_size)
+    py = _positive("pixel size y", pixel_size_y) if pixel_size_y is not None else px
+    h = _positive("layer height", layer_height) if layer_height is not None else px
+    if bounds is not None:
+        b = np.asarray(bounds, dtype=np.float64).reshape(-1)
+        if b.shape != (6,) or not np.all(np.isfinite(b)):
+            raise GridError(f"bounds must be 6 finite numbers X0 Y0 Z0 X1 Y1 Z1, got {list(bounds)}")
+        lo, hi = b[:3], b[3:]
+        if np.any(hi <= lo):
+            raise GridError(f"bounds must have X1 > X0, Y1 > Y0, Z1 > Z0, got {b.tolist()}")
+        w = int(math.ceil((hi[0] - lo[0]) / px - 1e-9))
+        hh = int(math.ceil((hi[1] - lo[1]) / py - 1e-9))
+        k = int(math.ceil((hi[2] - lo[2]) / h - 1e-9))
+        origin = (lo[0] + 0.5 * px, hi[1] - 0.5 * py, lo[2] + 0.5 * h)
+    else:
+        lo, hi = support_box
+        i0 = math.floor(lo[0] / px) - 1
+        i1 = math.ceil(hi[0] / px) + 1
+        j0 = math.floor(lo[1] / py) - 1
+        j1 = math.ceil(hi[1] / py) + 1
+        k0 = math.floor(lo[2] / h) - 1
+        k1 = math.ceil(hi[2] / h) + 1
+        w, hh, k = i1 - i0 + 1, j1 - j0 + 1, k1 - k0 + 1
+        origin = (i0 * px, j1 * py, k0 * h)
+    n = float(w) * float(hh) * float(k)
+    if n > MAX_VOXELS:
+        raise GridError(
+            f"the grid would have {w} x {hh} x {k} = {n:.3g} voxels (limit {MAX_VOXELS:.0e}); "
+            f"use a larger pixel size or layer height")
+    return SliceGrid(tuple(float(v) for v in origin), (px, py), h, w, hh, k)
+
+
+__all__ = ["SliceGrid", "make_grid", "MAX_VOXELS"]
