@@ -9,14 +9,44 @@ Environment switches
 --------------------
 SKELSLICE_NUMBA_CACHE
     ``0`` disables Numba's on-disk cache (default: enabled).
+NUMBA_CACHE_DIR
+    If set, Numba's own cache location is used as is.
+
+Cache invalidation
+------------------
+Numba keys a cached function on its own file only: editing a callee in another
+file (say ``field.py`` under ``trace.py``) would silently reuse stale machine
+code. Unless ``NUMBA_CACHE_DIR`` is set, the cache therefore lives in a folder
+named after a hash of every kernel source file, so any change to any kernel
+starts a fresh cache.
 """
 from __future__ import annotations
 
+import hashlib
 import os
+from pathlib import Path
 
-from numba import njit
+from numba import config, njit
 
 CACHE: bool = os.environ.get("SKELSLICE_NUMBA_CACHE", "1") not in ("0", "false", "no")
+
+
+def _kernel_source_hash() -> str:
+    here = Path(__file__).parent
+    h = hashlib.sha256()
+    for f in [here / "_jit.py", *sorted((here / "_kernels").glob("*.py"))]:
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _cache_root() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "skelslice" / "numba"
+
+
+if CACHE and not os.environ.get("NUMBA_CACHE_DIR"):
+    config.CACHE_DIR = str(_cache_root() / _kernel_source_hash())
 
 _COMMON = dict(cache=CACHE, error_model="numpy", fastmath=False)
 

@@ -156,7 +156,13 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, out):
                 else:
                     disc = b2 * b2 - a2 * c2
                     if disc < 0.0:
-                        continue
+                        # a double root pushed negative by rounding (e.g. a strut
+                        # perpendicular to the ray): the vertex is the extremum.
+                        # Any s in [s0, s1] is a real point of the support, so an
+                        # extra candidate can never make the interval unsound.
+                        if c == 3:
+                            continue
+                        disc = 0.0
                     sq = math.sqrt(disc)
                     s = (-b2 - sq) / a2 if c == 2 else (-b2 + sq) / a2
                 if not (s > s0 and s < s1):

@@ -1,0 +1,83 @@
+"""PNG stack: a folder of 8-bit greyscale layers plus ``slices.json``.
+
+``slices.json`` (a public interface; keys are only ever added):
+
+========================  ==================================================
+key                       meaning
+========================  ==================================================
+width, height, layers     image size in pixels and number of layers
+pixel_size                [px, py], mm
+layer_height              mm
+origin                    [x, y, z] mm, centre of voxel (column 0, row 0, layer 0)
+files                     layer file names, bottom layer first
+units                     "mm"
+axes                      columns toward +x, rows toward -y, layers toward +z
+inside_value              grey level of inside pixels (255)
+generator, method, ...    provenance (skelslice version, tracing method, scene)
+========================  ==================================================
+
+Voxel (i, j, k) has its centre at ``(x0 + i px, y0 - j py, z0 + k h)``.
+"""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+from PIL import Image
+
+from slicer.errors import OutputError
+
+from .base import StackWriter, atomic_dir
+
+LAYER_NAME = "layer_{:05d}.png"
+
+
+class PngStackWriter(StackWriter):
+    """Folder of ``layer_00000.png`` ... plus ``slices.json``, published atomically."""
+
+    name = "png"
+
+    def __init__(self, path, grid, meta=None, force=False):
+        super().__init__(path, grid, meta, force)
+        self._dir = atomic_dir(self.path)
+        self._files: list[str] = []
+
+    def write_layer(self, k: int, image: np.ndarray) -> None:
+        if k != len(self._files):
+            raise ValueError(f"layers must be written in order: expected {len(self._files)}, got {k}")
+        name = LAYER_NAME.format(k)
+        try:
+            Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8)).save(
+                self._dir.tmp / name, format="PNG", compress_level=3)
+        except OSError as exc:
+            self.abort()
+            raise OutputError(f"{self.path}: cannot write {name} ({exc})") from None
+        self._files.append(name)
+
+    def close(self) -> None:
+        g = self.grid
+        if len(self._files) != g.layers:
+            self.abort()
+            raise OutputError(f"{self.path}: {len(self._files)} of {g.layers} layers were written")
+        doc = {
+            **g.to_dict(),
+            "files": self._files,
+            "units": "mm",
+            "axes": {"columns": "+x", "rows": "-y", "layers": "+z"},
+            "inside_value": 255,
+            **self.meta,
+        }
+        try:
+            with open(self._dir.tmp / "slices.json", "w") as fh:
+                json.dump(doc, fh, indent=1)
+                fh.write("\n")
+                fh.flush()
+                os.fsync(fh.fileno())
+            self._dir.publish(self.force)
+        except OSError as exc:
+            self.abort()
+            raise OutputError(f"{self.path}: cannot finish the output ({exc})") from None
+
+    def abort(self) -> None:
+        self._dir.discard()

@@ -1,0 +1,231 @@
+"""Slicing tracer against a dense reference: the field at every voxel centre.
+
+Every method must classify every voxel centre as ``F(centre) >= 1``; the only
+tolerated disagreements are centres where ``|F - 1| <= 1e-9`` (summation
+order). Scenes are the stiff cases of the tracer issue.
+"""
+from __future__ import annotations
+
+import itertools
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+from PIL import Image
+
+from slicer import Skeleton
+from slicer.grid import make_grid
+from slicer.slicing import METHODS, slice_skeleton, trace
+
+TOL = 1e-9
+
+
+def dense_field(skel, grid):
+    """(layers, height, width) field at every voxel centre of ``grid``."""
+    X, Y, Z = np.meshgrid(grid.centres_x(), grid.centres_y(), grid.centres_z(), indexing="xy")
+    P = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
+    return skel.field(P).reshape(grid.height, grid.width, grid.layers).transpose(2, 0, 1)
+
+
+def assert_exact(skel, grid, method, bucket=16, **kw):
+    res = trace(skel, grid, method=method, bucket=bucket, **kw)
+    vol = res.volume()
+    f = dense_field(skel, grid)
+    bad = (vol != (f >= 1.0)) & (np.abs(f - 1.0) > TOL)
+    assert not bad.any(), (
+        f"{method}: {int(bad.sum())} voxels misclassified, e.g. at (k, j, i) = "
+        f"{tuple(int(v) for v in np.argwhere(bad)[0])}, F = {f[tuple(np.argwhere(bad)[0])]!r}")
+    return res, f
+
+
+def _scene(nodes, segs, radii):
+    return Skeleton(np.asarray(nodes, float), np.asarray(segs), np.asarray(radii, float))
+
+
+CASES = {
+    # a vertical strut whose axis is exactly a pixel column: the ray runs along the axis
+    "vertical_on_column": (_scene([[0, 0, 0], [0, 0, 3]], [[0, 1]], [[0.5, 0.5]]), 0.1, 0.1),
+    # horizontal struts lying exactly in a layer plane (z = 1.0 is a layer centre)
+    "horizontal_on_layer": (_scene([[-2, 0, 1.0], [2, 0, 1.0], [0, -2, 1.0], [0, 2, 1.0]],
+                                   [[0, 1], [2, 3]], [[0.4, 0.4], [0.3, 0.5]]), 0.1, 0.1),
+    "near_constant_taper": (_scene([[0, 0, 0], [2, 1, 2]], [[0, 1]], [[0.4, 0.4 * (1 + 1e-9)]]), 0.08, 0.07),
+    "cone_ratio_100": (_scene([[0, 0, 0], [0.5, 0.3, 3]], [[0, 1]], [[0.01, 1.0]]), 0.08, 0.08),
+    "thinner_than_pixel": (_scene([[0, 0, 0], [1.5, 0.7, 2.0], [0, 0, 0], [-1, 1, 1]],
+                                  [[0, 1], [2, 3]], [[0.03, 0.03], [0.02, 0.04]]), 0.1, 0.1),
+    "offset_5000mm": (_scene(np.array([[0, 0, 0], [1, 2, 2.5], [2, 0, 1]]) + 5000.0, [[0, 1], [1, 2]],
+                             [[0.3, 0.5], [0.5, 0.25]]), 0.1, 0.09),
+    "lone_short_strut": (_scene([[0, 0, 0], [0.3, 0, 0.2]], [[0, 1]], [[0.6, 0.6]]), 0.05, 0.05),
+}
+
+
+def _node26():
+    dirs = [d for d in itertools.product((-1, 0, 1), repeat=3) if d != (0, 0, 0)]
+    nodes = [[0.0, 0.0, 0.0]] + [list(1.6 * np.array(d, float)) for d in dirs]
+    segs = [[0, i + 1] for i in range(26)]
+    radii = [[0.25, 0.12]] * 26
+    return _scene(nodes, segs, radii)
+
+
+CASES["node_26_struts"] = (_node26(), 0.1, 0.1)
+
+
+@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_every_voxel_matches_dense_reference(case, method):
+    skel, px, h = CASES[case]
+    grid = make_grid(skel.support_bounds(), px, layer_height=h)
+    res, f = assert_exact(skel, grid, method)
+    if case == "lone_short_strut":
+        # L = 0.36 tau < 0.688 tau: no surface at all (math.md §1.5)
+        assert f.max() < 1.0 and res.n_runs == 0
+    elif case != "thinner_than_pixel":
+        assert res.n_runs > 0
+
+
+def test_interval_strict_mode_is_exact_too():
+    skel, px, h = CASES["node_26_struts"]
+    grid = make_grid(skel.support_bounds(), px, layer_height=h)
+    assert_exact(skel, grid, "interval", strict=True)
+
+
+def test_random_lattice_all_methods_and_bucket_sizes():
+    rng = np.random.default_rng(7)
+    nodes = rng.uniform(0, 5, (15, 3))
+    segs = np.array([[i, (i + 3) % 15] for i in range(15)] + [[i, (i + 7) % 15] for i in range(0, 15, 2)])
+    radii = rng.uniform(0.15, 0.5, (len(segs), 2))
+    skel = Skeleton(nodes, segs, radii)
+    grid = make_grid(skel.support_bounds(), 0.09, 0.11, 0.07)
+    vols = []
+    for method, bucket in [("interval", 8), ("interval", 0), ("sampling", 5), ("segment", 64)]:
+        res, _ = assert_exact(skel, grid, method, bucket=bucket)
+        vols.append(res.volume())
+    for v in vols[1:]:
+        assert np.array_equal(v, vols[0])
+
+
+def test_interval_needs_far_fewer_evaluations_than_sampling():
+    skel, px, h = CASES["node_26_struts"]
+    grid = make_grid(skel.support_bounds(), px, layer_height=h / 4)
+    ev = {m: trace(skel, grid, method=m).stats["evaluations"] for m in ("interval", "sampling")}
+    assert ev["interval"] * 3 < ev["sampling"], ev
+
+
+def test_default_bounds_cover_the_surface_with_one_empty_voxel_margin():
+    skel = CASES["cone_ratio_100"][0]
+    res = slice_skeleton(skel, 0.1, layer_height=0.1)
+    g = res.grid
+    vol = res.volume()
+    assert vol.any()
+    # one empty voxel on every side, and nothing outside the model
+    for axis in range(3):
+        occupied = np.nonzero(vol.any(axis=tuple(a for a in range(3) if a != axis)))[0]
+        assert occupied[0] == 1 and occupied[-1] == vol.shape[axis] - 2
+    # the untrimmed trace over the supports has no inside voxel the trimmed one lost
+    full = trace(skel, make_grid(skel.support_bounds(), 0.1, layer_height=0.1))
+    assert full.volume().sum() == vol.sum()
+
+
+def test_explicit_bounds_layout():
+    skel = CASES["vertical_on_column"][0]
+    res = slice_skeleton(skel, 0.25, layer_height=0.5, bounds=(-1, -1, 0, 1, 1, 3))
+    g = res.grid
+    assert (g.width, g.height, g.layers) == (8, 8, 6)
+    assert g.origin == (-0.875, 0.875, 0.25)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.lists(st.floats(-2, 2), min_size=6, max_size=6),
+    st.floats(0.05, 1.0), st.floats(0.05, 1.0),
+    st.floats(-1.5, 1.5), st.floats(-1.5, 1.5),
+    st.floats(0.0, 1.0), st.floats(0.0, 1.0),
+)
+def test_inclusion_and_lipschitz_bounds_are_sound(ends, r0, r1, ox, oy, u, v):
+    """For a random segment, vertical ray and piece [ta, tb] inside the support:
+    sampled true field values stay within the per-primitive inclusion, and the
+    sampled slope within the directional Lipschitz bound."""
+    from slicer._kernels.field import SCRATCH, segment_eval
+    from slicer._kernels.raysupport import H_TIN, H_TOUT, NHIT, kprime_max, lipschitz, ray_support
+    from slicer.field import segment_table
+
+    a, b = np.array(ends[:3]), np.array(ends[3:])
+    if np.linalg.norm(b - a) < 1e-3:
+        return
+    skel = Skeleton([a, b], [[0, 1]], [[r0, r1]])
+    seg = segment_table(skel)
+    n, sigma, norm = skel.degree, skel.sigma, skel.normalisation
+    rec = np.empty(NHIT)
+    if not ray_support(seg, 0, ox, oy, 0.0, 0.0, 0.0, 1.0, n, sigma, norm, kprime_max(n, sigma, norm), rec):
+        # a miss must really be a miss
+        zs = np.linspace(-4, 4, 801)
+        f = skel.field(np.stack([np.full_like(zs, ox), np.full_like(zs, oy), zs], 1))
+        assert f.max() == 0.0
+        return
+    tin, tout = rec[H_TIN], rec[H_TOUT]
+    # nothing of the field lies outside [t_in, t_out]
+    zs_out = np.concatenate([np.linspace(tin - 3, tin, 200), np.linspace(tout, tout + 3, 200)])
+    assert skel.field(np.stack([np.full_like(zs_out, ox), np.full_like(zs_out, oy), zs_out], 1)).max() == 0.0
+    ta = tin + u * (tout - tin)
+    tb = ta + v * (tout - ta)
+    if tb <= ta:
+        return
+    zs = np.linspace(ta, tb, 401)
+    P = np.stack([np.full_like(zs, ox), np.full_like(zs, oy), zs], 1)
+    f = skel.field(P)
+    dfdz = skel.gradient(P)[:, 2]
+    K = lipschitz(rec, ta, tb)
+    assert np.all(np.abs(dfdz) <= K * (1 + 1e-9) + 1e-12)
+    f0, f1 = f[0], f[-1]
+    d0, d1 = dfdz[0], dfdz[-1]
+    hi = 0.5 * (f0 + f1 + K * (tb - ta))
+    assert f.max() <= hi * (1 + 1e-9) + 1e-12
+    if d1 > 0 and not d0 < 0:       # increasing piece (unimodality)
+        assert f.max() <= f1 * (1 + 1e-9) + 1e-12 and f.min() >= f0 * (1 - 1e-9) - 1e-12
+    elif d0 < 0 and not d1 > 0:     # decreasing piece
+        assert f.max() <= f0 * (1 + 1e-9) + 1e-12 and f.min() >= f1 * (1 - 1e-9) - 1e-12
+    else:
+        assert f.min() >= min(f0, f1) * (1 - 1e-9) - 1e-12
+
+
+def test_one_and_two_threads_give_identical_bytes(tmp_path):
+    """Through the real entry point, in fresh processes: same PNG bytes."""
+    skel = _node26()
+    scene = tmp_path / "node.json"
+    skel.save(scene)
+    outs = []
+    for t in (1, 2):
+        out = tmp_path / f"out{t}"
+        r = subprocess.run([sys.executable, "-m", "slicer", "slice", str(scene), "-o", str(out),
+                            "--pixel-size", "0.07", "--threads", str(t), "--bucket", "8", "-q"],
+                           capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        outs.append(out)
+    meta = [json.loads((o / "slices.json").read_text()) for o in outs]
+    assert meta[0]["files"] == meta[1]["files"] and len(meta[0]["files"]) == meta[0]["layers"]
+    for name in meta[0]["files"] + ["slices.json"]:
+        assert (outs[0] / name).read_bytes() == (outs[1] / name).read_bytes(), name
+
+
+def test_png_stack_layout_matches_field_at_voxel_centres(tmp_path):
+    """slices.json's origin/pixel_size/layer_height and the row/column
+    convention locate every voxel centre: pixel == 255 iff F(centre) >= 1."""
+    from slicer.job import run_slice
+
+    skel = _scene([[0, 0, 0], [2.0, 0.5, 1.5], [0, 0, 0], [-0.5, 1.5, 1.0]], [[0, 1], [2, 3]],
+                  [[0.4, 0.2], [0.4, 0.3]])
+    out = tmp_path / "stack"
+    run_slice(skel, out, pixel_size=0.1, pixel_size_y=0.13, layer_height=0.11, progress=False)
+    meta = json.loads((out / "slices.json").read_text())
+    W, H, K = meta["width"], meta["height"], meta["layers"]
+    (x0, y0, z0), (px, py), h = meta["origin"], meta["pixel_size"], meta["layer_height"]
+    vol = np.stack([np.asarray(Image.open(out / f)) for f in meta["files"]])
+    assert vol.shape == (K, H, W) and vol.dtype == np.uint8 and set(np.unique(vol)) <= {0, 255}
+    k, j, i = np.meshgrid(np.arange(K), np.arange(H), np.arange(W), indexing="ij")
+    P = np.stack([x0 + i * px, y0 - j * py, z0 + k * h], -1).reshape(-1, 3)
+    f = skel.field(P).reshape(K, H, W)
+    bad = ((vol == 255) != (f >= 1)) & (np.abs(f - 1) > TOL)
+    assert not bad.any()
+    assert (vol == 255).sum() > 100

@@ -1,0 +1,1 @@
+"""Validation: meshed references, metrics, benchmarks and stiff cases."""
