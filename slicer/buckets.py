@@ -32,8 +32,8 @@ class Buckets:
         sorted by support zmin.
     table : (m, 10) float64
         Segment table for the kernels.
-    zmin, zmax : (m,) float64, mm
-        Support extent along z of each segment.
+    boxes : (m, 6) float64, mm
+        Support box of each segment, ``xlo ylo zlo xhi yhi zhi``.
     """
 
     size: int
@@ -42,8 +42,7 @@ class Buckets:
     offsets: np.ndarray
     ids: np.ndarray
     table: np.ndarray
-    zmin: np.ndarray
-    zmax: np.ndarray
+    boxes: np.ndarray
 
     def nonempty(self) -> np.ndarray:
         """(k,) int64: flat indices of buckets with at least one segment."""
@@ -90,8 +89,7 @@ def build_buckets(skel: Skeleton, grid: SliceGrid, size: int = 64) -> Buckets:
     cand = np.nonzero(keep)[0]
     order = cand[np.argsort(lo[cand, 2], kind="stable")].astype(np.int64)
     offsets, ids = bin_boxes(blo, bhi, order, origin, cell, dims)
-    return Buckets(B, nbx, nby, offsets, ids, table, np.ascontiguousarray(lo[:, 2]),
-                   np.ascontiguousarray(hi[:, 2]))
+    return Buckets(B, nbx, nby, offsets, ids, table, np.ascontiguousarray(np.hstack([lo, hi])))
 
 
 __all__ = ["Buckets", "build_buckets"]

@@ -187,7 +187,7 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
         stats = np.zeros((nb, 2), np.int64)
         with numba.parallel_chunksize(1):
             kern(code, pending, bk.nbx, B, grid.width, grid.height, bk.offsets, bk.ids, bk.table,
-                 bk.zmin, bk.zmax, grid.origin[0], grid.origin[1], grid.pixel_size[0],
+                 bk.boxes, grid.origin[0], grid.origin[1], grid.pixel_size[0],
                  grid.pixel_size[1], grid.origin[2], grid.layer_height, grid.layers, n, sigma, norm,
                  kmax, strict, bk.longest(), cap, ray_nrun, run_k0, run_k1, stats)
         retry = []

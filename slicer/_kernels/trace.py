@@ -70,24 +70,40 @@ def _emit(k0, k1, inside, rk0, rk1, nrun, cap):
 
 
 @kernel
-def _eval_set(seg, hprim, sarr, ns, px, py, z, m, inv_s2, norm, scratch, fo, fpo):
-    """f and df/dz of the ns primitives sarr[:ns] at (px, py, z); returns the sum."""
+def _eval_set(seg, hprim, sarr, ns, px, py, z, m, inv_s2, norm, scratch, fo, fpo, ct, cf, cfp):
+    """f and df/dz of the ns primitives sarr[:ns] at (px, py, z); returns the
+    sum and the number of evaluations done. Each hit caches its last value
+    (ct, cf, cfp), so a breakpoint shared by two pieces is evaluated once."""
     tot = 0.0
+    nev = 0
     for s in range(ns):
-        f, gx, gy, gz = segment_eval(seg, hprim[sarr[s]], px, py, z, m, inv_s2, norm, True, scratch)
+        r = sarr[s]
+        if ct[r] == z:
+            f = cf[r]
+            gz = cfp[r]
+        else:
+            f, gx, gy, gz = segment_eval(seg, hprim[r], px, py, z, m, inv_s2, norm, True, scratch)
+            ct[r] = z
+            cf[r] = f
+            cfp[r] = gz
+            nev += 1
         fo[s] = f
         fpo[s] = gz
         tot += f
-    return tot
+    return tot, nev
 
 
 @kernel
-def _ray_hits(seg, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order):
+def _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order):
     """Hit records of the bucket's segments ids[i0:i1] with the vertical ray
     at (px, py), kept if they reach [zlo, zhi]; returns the count, sorted by t_in
-    into ``order``."""
+    into ``order``. A segment whose support box misses the ray is skipped
+    before the exact test."""
     nh = 0
     for r in range(i0, i1):
+        g = ids[r]
+        if px < boxes[g, 0] or px > boxes[g, 3] or py < boxes[g, 1] or py > boxes[g, 4]:
+            continue
         if ray_support(seg, ids[r], px, py, 0.0, 0.0, 0.0, 1.0, n, sigma, norm, kmax, hrec[nh]):
             if hrec[nh, H_TOUT] > zlo and hrec[nh, H_TIN] < zhi:
                 hprim[nh] = ids[r]
@@ -154,9 +170,9 @@ def _piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
 
 
 @kernel
-def trace_ray_interval(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict,
+def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict,
                        scratch, hprim, hrec, order, bps, sarr, cur_f, cur_fp, st_f, st_fp,
-                       st_kind, st_t, st_k0, st_k1, rk0, rk1, cap):
+                       st_kind, st_t, st_k0, st_k1, ct, cf, cfp, rk0, rk1, cap):
     """Classify the K voxel centres of one ray (interval method).
 
     Returns
@@ -170,7 +186,9 @@ def trace_ray_interval(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax,
     inv_s2 = 1.0 / (sigma * sigma)
     zlo = z0 - 0.5 * h
     zhi = z0 + (K - 0.5) * h
-    nh = _ray_hits(seg, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
+    nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
+    for r in range(nh):
+        ct[r] = math.nan
     nrun = 0
     nev = 0
     a = 0
@@ -212,9 +230,11 @@ def trace_ray_interval(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax,
                         ns += 1
                 if ns == 0:
                     continue
-                fcur = _eval_set(seg, hprim, sarr, ns, px, py, ta, m, inv_s2, norm, scratch, cur_f, cur_fp)
-                _eval_set(seg, hprim, sarr, ns, px, py, tb, m, inv_s2, norm, scratch, st_f[0], st_fp[0])
-                nev += 2 * ns
+                fcur, ne1 = _eval_set(seg, hprim, sarr, ns, px, py, ta, m, inv_s2, norm, scratch,
+                                      cur_f, cur_fp, ct, cf, cfp)
+                fb, ne2 = _eval_set(seg, hprim, sarr, ns, px, py, tb, m, inv_s2, norm, scratch,
+                                    st_f[0], st_fp[0], ct, cf, cfp)
+                nev += ne1 + ne2
                 tcur = ta
                 sp = 1
                 st_kind[0] = 0
@@ -271,9 +291,9 @@ def trace_ray_interval(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax,
                         return -1, nev
                     # right part keeps slot p (its right-end data are already there)
                     st_k0[p] = km + 1
-                    fm = _eval_set(seg, hprim, sarr, ns, px, py, zm, m, inv_s2, norm, scratch,
-                                   st_f[p + 2], st_fp[p + 2])
-                    nev += ns
+                    fm, ne1 = _eval_set(seg, hprim, sarr, ns, px, py, zm, m, inv_s2, norm, scratch,
+                                        st_f[p + 2], st_fp[p + 2], ct, cf, cfp)
+                    nev += ne1
                     st_kind[p + 1] = 1
                     st_k0[p + 1] = km
                     st_k1[p + 1] = 1 if fm >= 1.0 else 0
@@ -287,7 +307,7 @@ def trace_ray_interval(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax,
 
 
 @kernel
-def trace_ray_sampling(seg, ids, i0, i1, zmin, zmax, px, py, z0, h, K, m, inv_s2, norm,
+def trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, z0, h, K, m, inv_s2, norm,
                        scratch, active, rk0, rk1, cap):
     """Classify the K centres of one ray by evaluating the field at each,
     over the z-sorted active window of the bucket list ids[i0:i1]."""
@@ -297,13 +317,16 @@ def trace_ray_sampling(seg, ids, i0, i1, zmin, zmax, px, py, z0, h, K, m, inv_s2
     nxt = i0
     for k in range(K):
         z = z0 + k * h
-        while nxt < i1 and zmin[ids[nxt]] <= z:
-            active[na] = ids[nxt]
-            na += 1
+        while nxt < i1 and boxes[ids[nxt], 2] <= z:
+            g = ids[nxt]
             nxt += 1
+            if px < boxes[g, 0] or px > boxes[g, 3] or py < boxes[g, 1] or py > boxes[g, 4]:
+                continue
+            active[na] = g
+            na += 1
         w = 0
         for q in range(na):
-            if zmax[active[q]] >= z:
+            if boxes[active[q], 5] >= z:
                 active[w] = active[q]
                 w += 1
         na = w
@@ -323,7 +346,7 @@ def trace_ray_sampling(seg, ids, i0, i1, zmin, zmax, px, py, z0, h, K, m, inv_s2
 
 
 @kernel
-def trace_ray_segment(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax,
+def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax,
                       scratch, hprim, hrec, order, rk0, rk1, cap):
     """Classify the K centres of one ray with segment tracing (GGPP20).
 
@@ -337,7 +360,7 @@ def trace_ray_segment(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax,
     inv_s2 = 1.0 / (sigma * sigma)
     zlo = z0 - 0.5 * h
     zhi = z0 + (K - 0.5) * h
-    nh = _ray_hits(seg, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
+    nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
     nrun = 0
     nev = 0
     a = 0
@@ -399,7 +422,7 @@ def trace_ray_segment(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax,
 
 
 @parallel_kernel
-def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, zmin, zmax,
+def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                   x0, y0, pxs, pys, z0, h, K, n, sigma, norm, kmax, strict, max_list,
                   cap, ray_nrun, run_k0, run_k1, stats):
     """Trace every ray of the given buckets in parallel.
@@ -415,7 +438,9 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, zmin, zma
     bucket_off, ids : int64
         CSR bucket lists, each sorted by support zmin.
     seg : (m, 10) float64
-        Segment table; zmin, zmax (m,) support z-range (sampling window).
+        Segment table.
+    boxes : (m, 6) float64
+        Support boxes ``xlo ylo zlo xhi yhi zhi`` (ray culling, sampling window).
     x0, y0, pxs, pys, z0, h : float
         Centre of voxel (0, 0, 0), pixel sizes and layer height (rows run
         toward -y).
@@ -455,6 +480,9 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, zmin, zma
         st_k0 = np.empty(MAX_STACK, dtype=np.int64)
         st_k1 = np.empty(MAX_STACK, dtype=np.int64)
         active = np.empty(nl, dtype=np.int64)
+        ct = np.empty(nl)
+        cf = np.empty(nl)
+        cfp = np.empty(nl)
         used = 0
         nev_tot = 0
         status = OK
@@ -472,16 +500,16 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, zmin, zma
                 rk1 = run_k1[q, used:]
                 room = cap - used
                 if method == 0:
-                    nr, ne = trace_ray_interval(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
+                    nr, ne = trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
                                                 kmax, strict, scratch, hprim, hrec, order, bps, sarr,
                                                 cur_f, cur_fp, st_f, st_fp, st_kind, st_t, st_k0,
-                                                st_k1, rk0, rk1, room)
+                                                st_k1, ct, cf, cfp, rk0, rk1, room)
                 elif method == 1:
-                    nr, ne = trace_ray_sampling(seg, ids, i0, i1, zmin, zmax, px, py, z0, h, K,
+                    nr, ne = trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, z0, h, K,
                                                 n // 2, 1.0 / (sigma * sigma), norm, scratch,
                                                 active, rk0, rk1, room)
                 else:
-                    nr, ne = trace_ray_segment(seg, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
+                    nr, ne = trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
                                                kmax, scratch, hprim, hrec, order, rk0, rk1, room)
                 nev_tot += ne
                 if nr < 0:

@@ -1,0 +1,693 @@
+"""Scene files: the JSON scene format (version 1) and OBJ polylines.
+
+Reading validates everything and guesses nothing: any problem raises
+:class:`~slicer.errors.SceneError` whose message names the file, the entry
+(``segments[12][1]``, ``kernel.sigma``, or ``line 17`` for OBJ) and the
+offending value, e.g.::
+
+    scene.json: segments[3][1] = 57 is out of range (there are 40 nodes; indices are 0-based)
+
+JSON scene, version 1
+---------------------
+::
+
+    {"skelslice": 1, "units": "mm",
+     "nodes": [[x, y, z], ...],
+     "segments": [[i, j], ...],
+     "radii": [r_node, ...],
+     "segment_radii": [[r_i, r_j], ...],
+     "kernel": {"degree": 6, "sigma": 2.0}}
+
+* ``"skelslice"`` (the format version, the integer 1), ``"units"``,
+  ``"nodes"`` and ``"segments"`` are required. Segment indices are 0-based
+  node indices (JSON integers).
+* Radii: ``"radii"`` gives one radius per node; ``"segment_radii"`` gives a
+  radius at each end of each segment and wins when both are present (both are
+  still validated). With neither, the ``radius`` argument (CLI ``--radius``)
+  gives every segment end that radius; without it the file is rejected.
+* ``"kernel"`` is optional, and so are its keys ``"degree"`` (even integer,
+  default 6) and ``"sigma"`` (> 1, default 2.0). Other kernel keys are errors.
+* ``"units"``: one of ``"mm"``, ``"um"``, ``"cm"``, ``"m"``, ``"in"``. Node
+  positions and radii are converted to mm on reading (``um``: divided by 1000;
+  ``cm``: x 10; ``m``: x 1000; ``in``: x 25.4); ``"mm"`` is read bit-exactly.
+  Files are always written in mm.
+* Unknown top-level keys are errors (a misspelt ``"segment_radius"`` must not
+  be ignored silently), with a "did you mean" hint. Two kinds of extra keys
+  are allowed and ignored, so files can carry data for other tools and stay
+  readable: ``"metadata"`` (any JSON value) and any key starting with
+  ``"x-"``. The key set of version 1 is closed: a future format that adds keys
+  gets a new version number, which this reader rejects with an "upgrade"
+  hint, so erroring on unknown keys cannot break forward compatibility.
+* Duplicate keys, ``NaN``/``Infinity`` (which Python's :mod:`json` would
+  accept), booleans or strings where numbers are expected, floats where
+  indices are expected, and an empty ``"segments"`` list are errors.
+
+OBJ polylines
+-------------
+* ``v x y z`` or ``v x y z radius`` (mm) and ``l i j k ...`` line elements:
+  1-based indices, negative ones relative to the last vertex read so far (as
+  in OBJ), ``i/t`` forms accepted (the texture index is ignored). A polyline
+  ``l a b c`` makes the segments a-b and b-c, in file order.
+* Every vertex used by a segment needs a radius: its own 4th number, else the
+  ``radius`` argument. **File radii win**: ``radius`` is only a default for
+  vertices without one (so it fills the gaps of a file where only some
+  vertices have a radius). Without ``radius``, a used vertex lacking a radius
+  is an error naming its line.
+* Comments (``#`` to the end of the line), blank lines, ``\\`` line
+  continuations and statements that do not change the skeleton (``vn``,
+  ``vt``, ``vp``, ``o``, ``g``, ``s``, ``mg``, ``usemtl``, ``mtllib``, and
+  render attributes) are ignored. Faces (``f``, ``fo``), points (``p``),
+  free-form curves and surfaces, and unknown statements are errors naming the
+  line: a face is not a skeleton, and dropping it silently would slice
+  something other than what the file describes.
+* OBJ has no kernel: scenes read from OBJ use the default kernel.
+
+Writing
+-------
+:func:`save_scene` writes JSON v1 (``.json``) or OBJ (``.obj``) atomically
+(temporary file in the same directory, flush, fsync, :func:`os.replace`).
+``load_scene(save_scene(s))`` reproduces ``nodes``, ``segments``, ``radii``
+and the kernel bit-exactly for JSON, and for OBJ whenever every node has one
+radius (otherwise nodes whose segment ends disagree are duplicated, which
+leaves the surface unchanged).
+"""
+from __future__ import annotations
+
+import difflib
+import json
+import math
+import os
+import re
+import secrets
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import OutputError, SceneError
+from .skeleton import DEFAULT_DEGREE, DEFAULT_SIGMA, Skeleton
+
+#: scene format version written and read by this module
+FORMAT_VERSION = 1
+#: accepted "units": (multiplier, divisor) converting to mm
+UNITS: dict[str, tuple[float, float]] = {
+    "mm": (1.0, 1.0),
+    "um": (1.0, 1000.0),
+    "cm": (10.0, 1.0),
+    "m": (1000.0, 1.0),
+    "in": (25.4, 1.0),
+}
+#: file name suffixes and the format they select
+SUFFIXES = {".json": "json", ".obj": "obj"}
+
+_KEYS = ("skelslice", "units", "nodes", "segments", "radii", "segment_radii", "kernel")
+_KERNEL_KEYS = ("degree", "sigma")
+_MAX_SHOWN = 60
+
+
+# ----------------------------------------------------------------------------- public API
+def load_scene(path, radius: float | None = None) -> Skeleton:
+    """Read a scene file: a ``.json`` scene (version 1) or ``.obj`` polylines.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file; its suffix (case-insensitive) selects the format.
+    radius : float, optional
+        Default radius (mm) for segment ends the file gives no radius for:
+        OBJ vertices without a 4th number, or a JSON scene without
+        ``"radii"``/``"segment_radii"``. Radii in the file always win.
+
+    Returns
+    -------
+    Skeleton
+        In mm, with ``source`` set to ``str(path)``.
+
+    Raises
+    ------
+    SceneError
+        If the file cannot be read or is malformed in any way; the message
+        names the file, the entry (or OBJ line) and the offending value.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> d = tempfile.mkdtemp()
+    >>> p = os.path.join(d, "s.obj")
+    >>> with open(p, "w") as f:
+    ...     _ = f.write("v 0 0 0\\nv 0 0 10\\nv 5 0 10\\nl 1 2 3\\n")
+    >>> s = load_scene(p, radius=0.5)
+    >>> s.segments.tolist(), s.radii.tolist()
+    ([[0, 1], [1, 2]], [[0.5, 0.5], [0.5, 0.5]])
+    """
+    src = os.fspath(path)
+    if isinstance(src, bytes):
+        src = os.fsdecode(src)
+    if radius is not None:
+        _check_radius_argument(radius)
+    fmt = SUFFIXES.get(Path(src).suffix.lower())
+    if fmt is None:
+        raise SceneError(
+            f"unknown scene file type {Path(src).suffix or '(no suffix)'!r}; "
+            f"expected a .json scene or .obj polylines", src)
+    text = _read_text(src)
+    if fmt == "json":
+        return _skeleton_from_json(_parse_json(text, src), src, radius)
+    return _skeleton_from_obj(text, src, radius)
+
+
+def save_scene(skel: Skeleton, path) -> None:
+    """Write a scene atomically: JSON v1 for ``.json``, OBJ polylines for ``.obj``.
+
+    The file is first written to a temporary file in the same directory,
+    flushed and fsynced, then moved over ``path`` with :func:`os.replace`; on
+    any failure the temporary file is removed and ``path`` is untouched.
+
+    Parameters
+    ----------
+    skel : Skeleton
+    path : str or os.PathLike
+
+    Raises
+    ------
+    OutputError
+        Unknown suffix, unwritable location, a scene :func:`load_scene` would
+        reject (no segments), or a non-default kernel for OBJ (which cannot
+        store it: use ``.json``).
+    """
+    dst = os.fspath(path)
+    if isinstance(dst, bytes):
+        dst = os.fsdecode(dst)
+    fmt = SUFFIXES.get(Path(dst).suffix.lower())
+    if fmt is None:
+        raise OutputError(
+            f"{dst}: unknown scene file type {Path(dst).suffix or '(no suffix)'!r}; "
+            f"use .json (scene v1) or .obj (polylines)")
+    if not isinstance(skel, Skeleton):
+        raise TypeError(f"save_scene expects a Skeleton, got {type(skel).__name__}")
+    if skel.n_segments == 0:
+        raise OutputError(f"{dst}: the scene has no segments; such a file could not be read back")
+    if fmt == "json":
+        data = (json.dumps(skel.to_dict(), allow_nan=False, separators=(", ", ": ")) + "\n").encode()
+    else:
+        data = _obj_text(skel, dst).encode()
+    _write_atomic(dst, data)
+
+
+# ----------------------------------------------------------------------------- reading helpers
+def _check_radius_argument(radius) -> None:
+    ok = (not isinstance(radius, bool) and isinstance(radius, (int, float, np.integer, np.floating))
+          and math.isfinite(radius) and radius > 0)
+    if not ok:
+        raise SceneError(f"radius (--radius) must be a finite number > 0, got {radius!r}")
+
+
+def _read_text(src: str) -> str:
+    try:
+        raw = Path(src).read_bytes()
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise SceneError(f"cannot read the scene file: {reason}", src) from None
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        bad = raw[exc.start:exc.start + 1].hex()
+        raise SceneError(
+            f"line {line}: not UTF-8 text (byte 0x{bad} at offset {exc.start}); "
+            f"is this a scene file?", src) from None
+
+
+def _show(value: Any) -> str:
+    """The value as it looks in JSON, shortened."""
+    try:
+        s = json.dumps(value)
+    except (TypeError, ValueError, RecursionError):
+        s = repr(value)
+    return s if len(s) <= _MAX_SHOWN else s[:_MAX_SHOWN - 3] + "..."
+
+
+def _is(where: str, value: Any) -> str:
+    """``where = value is a string`` (``where is null`` for null)."""
+    if value is None:
+        return f"{where} is null"
+    return f"{where} = {_show(value)} is {_kind(value)}"
+
+
+def _plural(k: int, word: str) -> str:
+    return f"{k} {word}" + ("" if k == 1 else "s")
+
+
+def _kind(value: Any) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, (int, float)):
+        return "a number"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, list):
+        return "an array"
+    if isinstance(value, dict):
+        return "an object"
+    return type(value).__name__  # pragma: no cover - json yields only the above
+
+
+# ----------------------------------------------------------------------------- JSON
+class _DuplicateKey(Exception):
+    pass
+
+
+def _no_duplicates(pairs):
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(k)
+        out[k] = v
+    return out
+
+
+def _parse_json(text: str, src: str):
+    if not text.strip():
+        raise SceneError("the file is empty; expected a JSON scene {\"skelslice\": 1, ...}", src)
+    try:
+        return json.loads(text, object_pairs_hook=_no_duplicates)
+    except json.JSONDecodeError as exc:
+        lines = text.split("\n")
+        line = lines[exc.lineno - 1] if exc.lineno <= len(lines) else ""
+        start = max(0, exc.colno - 21)
+        near = line[start:exc.colno + 20].strip()
+        hint = f" near {near!r}" if near else ""
+        raise SceneError(f"invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}{hint}",
+                         src) from None
+    except _DuplicateKey as exc:
+        raise SceneError(f"invalid scene: duplicate key {_show(exc.args[0])} in a JSON object; "
+                         f"each key may appear once", src) from None
+    except RecursionError:
+        raise SceneError("invalid JSON: arrays or objects are nested too deeply", src) from None
+    except ValueError as exc:  # integers with more than sys.get_int_max_str_digits() digits
+        why = str(exc)
+        if "digits" in why:
+            why = "a number has too many digits"
+        raise SceneError(f"invalid JSON: {why}", src) from None
+
+
+def _number(value, where: str, src: str) -> float:
+    t = type(value)
+    if t is float:
+        if not math.isfinite(value):
+            raise SceneError(f"{where} = {_show(value)} is not a finite number", src)
+        return value
+    if t is int:
+        try:
+            return float(value)
+        except OverflowError:
+            raise SceneError(f"{where} = {_show(value)} is too large for a float", src) from None
+    raise SceneError(f"{_is(where, value)}, not a number", src)
+
+
+def _array(value, name: str, what: str, src: str) -> list:
+    if type(value) is not list:
+        raise SceneError(f'"{name}" = {_show(value)} must be an array of {what}, got {_kind(value)}', src)
+    return value
+
+
+def _rows(value, name: str, width: int, item: str, form: str, src: str) -> list[list[float]]:
+    """Validate an array of fixed-width rows of numbers (nodes, segment_radii)."""
+    out = []
+    for i, row in enumerate(_array(value, name, f"{item}s {form}", src)):
+        if type(row) is not list:
+            raise SceneError(f"{_is(f'{name}[{i}]', row)}; a {item} is {form}", src)
+        if len(row) != width:
+            raise SceneError(f"{name}[{i}] = {_show(row)} has {_plural(len(row), 'number')}; "
+                             f"a {item} is {form}", src)
+        out.append([_number(x, f"{name}[{i}][{k}]", src) for k, x in enumerate(row)])
+    return out
+
+
+def _positive(values, name: str, src: str, nested: bool) -> None:
+    """Radii must be > 0 (finiteness is already checked)."""
+    for i, v in enumerate(values):
+        for k, r in (enumerate(v) if nested else ((None, v),)):
+            if not r > 0:
+                where = f"{name}[{i}]" + ("" if k is None else f"[{k}]")
+                raise SceneError(f"{where} = {_show(r)} is not a valid radius; radii must be > 0", src)
+
+
+def _segments(value, n: int, src: str) -> list[list[int]]:
+    form = "[i, j] (two 0-based node indices)"
+    out = []
+    for i, row in enumerate(_array(value, "segments", f"segments {form}", src)):
+        if type(row) is not list:
+            raise SceneError(f"{_is(f'segments[{i}]', row)}; a segment is {form}", src)
+        if len(row) != 2:
+            raise SceneError(f"segments[{i}] = {_show(row)} has {len(row)} {'entry' if len(row) == 1 else 'entries'}; "
+                             f"a segment is {form}", src)
+        for k, v in enumerate(row):
+            where = f"segments[{i}][{k}]"
+            if type(v) is not int:
+                what = f"{where} = {_show(v)} is not an integer" if type(v) is float else \
+                    f"{_is(where, v)}, not an integer"
+                raise SceneError(f"{what}; segment ends are 0-based node indices", src)
+            if not 0 <= v < n:
+                raise SceneError(f"{where} = {v} is out of range (there are {n} nodes; "
+                                 f"indices are 0-based)", src)
+        if row[0] == row[1]:
+            raise SceneError(f"segments[{i}] = {_show(row)} joins node {row[0]} to itself "
+                             f"(a zero-length segment)", src)
+        out.append(row)
+    return out
+
+
+def _unknown_keys_message(unknown: list[str], known) -> str:
+    parts = []
+    for k in unknown:
+        close = difflib.get_close_matches(k, known, n=1)
+        parts.append(_show(k) + (f" (did you mean {_show(close[0])}?)" if close else ""))
+    return ", ".join(parts)
+
+
+def _skeleton_from_json(data, src: str, radius: float | None) -> Skeleton:
+    if type(data) is not dict:
+        raise SceneError(f"the top level must be a JSON object {{\"skelslice\": 1, ...}}, "
+                         f"got {_kind(data)} {_show(data)}", src)
+    if "skelslice" not in data:
+        raise SceneError('missing the format key "skelslice" (the version, 1); '
+                         'this does not look like a skelslice scene', src)
+    version = data["skelslice"]
+    if type(version) is not int:
+        raise SceneError(f'"skelslice" = {_show(version)} must be the integer format version '
+                         f'{FORMAT_VERSION}', src)
+    if version != FORMAT_VERSION:
+        from . import __version__
+
+        raise SceneError(f'"skelslice" = {version}: scene format version {version} is not supported '
+                         f'(skelslice {__version__} reads version {FORMAT_VERSION}); '
+                         f'upgrade skelslice', src)
+    unknown = [k for k in data if k not in _KEYS and k != "metadata" and not k.startswith("x-")]
+    if unknown:
+        raise SceneError(f"unknown key{'s' if len(unknown) > 1 else ''} "
+                         f"{_unknown_keys_message(unknown, _KEYS + ('metadata',))}; "
+                         f'extra data must go under "metadata" or keys starting with "x-"', src)
+    missing = [k for k in ("units", "nodes", "segments") if k not in data]
+    if missing:
+        raise SceneError("missing key" + ("s " if len(missing) > 1 else " ")
+                         + ", ".join(f'"{k}"' for k in missing), src)
+
+    units = data["units"]
+    if type(units) is not str or units not in UNITS:
+        raise SceneError(f'"units" = {_show(units)} is not supported; use one of '
+                         + ", ".join(f'"{u}"' for u in UNITS), src)
+
+    nodes = _rows(data["nodes"], "nodes", 3, "node", "[x, y, z]", src)
+    n = len(nodes)
+    segments = _segments(data["segments"], n, src)
+    if not segments:
+        raise SceneError('"segments" is empty; a scene needs at least one segment', src)
+    m = len(segments)
+
+    node_radii = seg_radii = None
+    if "radii" in data:
+        node_radii = [_number(r, f"radii[{i}]", src)
+                      for i, r in enumerate(_array(data["radii"], "radii", "numbers (one radius per node)", src))]
+        _positive(node_radii, "radii", src, nested=False)
+        if len(node_radii) != n:
+            raise SceneError(f'"radii" has {len(node_radii)} entries but there are {n} nodes; '
+                             f'give one radius per node (or use "segment_radii")', src)
+    if "segment_radii" in data:
+        seg_radii = _rows(data["segment_radii"], "segment_radii", 2, "segment radius pair", "[r_i, r_j]", src)
+        _positive(seg_radii, "segment_radii", src, nested=True)
+        if len(seg_radii) != m:
+            raise SceneError(f'"segment_radii" has {len(seg_radii)} entries but there are {m} segments; '
+                             f'give one [r_i, r_j] pair per segment', src)
+
+    degree, sigma = DEFAULT_DEGREE, DEFAULT_SIGMA
+    if "kernel" in data:
+        kernel = data["kernel"]
+        if type(kernel) is not dict:
+            raise SceneError(f'"kernel" = {_show(kernel)} must be an object such as '
+                             f'{{"degree": {DEFAULT_DEGREE}, "sigma": {DEFAULT_SIGMA}}}', src)
+        bad = [k for k in kernel if k not in _KERNEL_KEYS]
+        if bad:
+            raise SceneError(f"unknown kernel key{'s' if len(bad) > 1 else ''} "
+                             f"{_unknown_keys_message(bad, _KERNEL_KEYS)}; "
+                             f'the kernel has only "degree" and "sigma"', src)
+        degree = kernel.get("degree", DEFAULT_DEGREE)
+        if "sigma" in kernel:
+            sigma = kernel["sigma"]
+            if type(sigma) in (int, float):
+                sigma = _number(sigma, "kernel.sigma", src)
+
+    seg_arr = np.array(segments, dtype=np.int64).reshape(m, 2)
+    nodes_arr = np.array(nodes, dtype=np.float64).reshape(n, 3)
+    if seg_radii is not None:
+        radii_arr = np.array(seg_radii, dtype=np.float64).reshape(m, 2)
+    elif node_radii is not None:
+        radii_arr = np.array(node_radii, dtype=np.float64)[seg_arr]
+    elif radius is None:
+        raise SceneError('no radii: give "radii" (one per node) or "segment_radii" '
+                         '(one [r_i, r_j] pair per segment), or pass --radius', src)
+    else:
+        radii_arr = None  # the radius argument is in mm already
+    if units != "mm":
+        mul, div = UNITS[units]
+        with np.errstate(over="ignore", under="ignore"):
+            nodes_arr = nodes_arr * mul / div
+            if radii_arr is not None:
+                radii_arr = radii_arr * mul / div
+        for name, arr in (("coordinates", nodes_arr), ("radii", radii_arr)):
+            if arr is not None and not np.all(np.isfinite(arr)):
+                raise SceneError(f"{name} overflow when converted from {units} to mm", src)
+        if radii_arr is not None and not np.all(radii_arr > 0):
+            raise SceneError(f"radii underflow to 0 when converted from {units} to mm", src)
+    if radii_arr is None:
+        radii_arr = np.full((m, 2), float(radius))
+    return Skeleton(nodes_arr, seg_arr, radii_arr, degree, sigma, source=src)
+
+
+# ----------------------------------------------------------------------------- OBJ
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\Z")
+_INDEX = re.compile(r"[+-]?\d+\Z")
+_OBJ_IGNORED = frozenset({
+    "vn", "vt", "vp", "o", "g", "s", "mg", "usemtl", "mtllib", "lod", "bevel", "c_interp",
+    "d_interp", "shadow_obj", "trace_obj", "ctech", "stech", "maplib", "usemap",
+})
+_OBJ_FREEFORM = frozenset({
+    "cstype", "deg", "bmat", "step", "curv", "curv2", "surf", "parm", "trim", "hole", "scrv",
+    "sp", "end", "con",
+})
+
+
+def _obj_lines(text: str):
+    """(line number, tokens) of each statement, comments stripped, continuations joined."""
+    pending: list[str] = []
+    first = 0
+    for no, line in enumerate(text.splitlines(), 1):
+        line = line.split("#", 1)[0].rstrip()
+        if not pending:
+            first = no
+        if line.endswith("\\"):
+            pending.append(line[:-1])
+            continue
+        pending.append(line)
+        tokens = " ".join(pending).split()
+        pending = []
+        if tokens:
+            yield first, tokens
+    if pending:
+        tokens = " ".join(pending).split()
+        if tokens:
+            yield first, tokens
+
+
+def _statement(tokens: list[str]) -> str:
+    s = " ".join(tokens)
+    return repr(s if len(s) <= _MAX_SHOWN else s[:_MAX_SHOWN - 3] + "...")
+
+
+def _skeleton_from_obj(text: str, src: str, radius: float | None) -> Skeleton:
+    coords: list[list[float]] = []
+    vradius: list[float | None] = []
+    vline: list[int] = []
+    segs: list[tuple[int, int]] = []
+    sline: list[int] = []
+    stmt: dict[int, str] = {}
+    for no, tokens in _obj_lines(text):
+        key, args = tokens[0], tokens[1:]
+        where = f"line {no}: {_statement(tokens)}"
+        if key == "v":
+            if len(args) not in (3, 4):
+                extra = " (vertex colours are not supported)" if len(args) in (6, 7) else ""
+                raise SceneError(f"{where} has {len(args)} numbers; a vertex is 'v x y z' or "
+                                 f"'v x y z radius'{extra}", src)
+            vals = []
+            for a in args:
+                if not _NUMBER.match(a):
+                    raise SceneError(f"{where}: {a!r} is not a number", src)
+                x = float(a)
+                if not math.isfinite(x):
+                    raise SceneError(f"{where}: {a!r} is not a finite number", src)
+                vals.append(x)
+            r = None
+            if len(vals) == 4:
+                r = vals.pop()
+                if not r > 0:
+                    raise SceneError(f"{where}: radius {args[3]} is not valid; radii must be > 0", src)
+            coords.append(vals)
+            vradius.append(r)
+            vline.append(no)
+        elif key == "l":
+            if len(args) < 2:
+                raise SceneError(f"{where}: a line element needs at least two vertex indices", src)
+            idx = []
+            for a in args:
+                head = a.split("/", 1)[0]
+                if not _INDEX.match(head):
+                    raise SceneError(f"{where}: {a!r} is not a vertex index", src)
+                i = int(head)
+                if i == 0:
+                    raise SceneError(f"{where}: vertex index 0 is invalid; OBJ indices start at 1 "
+                                     f"(negative ones count back from the last vertex)", src)
+                if i < 0:
+                    j = len(coords) + i
+                    if j < 0:
+                        raise SceneError(f"{where}: relative vertex index {i} points before the first "
+                                         f"vertex (only {len(coords)} vertices are defined above)", src)
+                    idx.append(j)
+                else:
+                    idx.append(i - 1)
+            stmt[no] = _statement(tokens)
+            for a, b in zip(idx[:-1], idx[1:]):
+                segs.append((a, b))
+                sline.append(no)
+        elif key in ("f", "fo"):
+            raise SceneError(f"{where}: faces are not a skeleton; describe the struts as polylines "
+                             f"('l i j ...'), one per strut or chain of struts", src)
+        elif key == "p":
+            raise SceneError(f"{where}: point elements are not supported; a skeleton is made of "
+                             f"segments ('l i j ...')", src)
+        elif key in _OBJ_FREEFORM:
+            raise SceneError(f"{where}: free-form curves and surfaces are not supported; "
+                             f"use polylines ('l i j ...')", src)
+        elif key in _OBJ_IGNORED:
+            continue
+        else:
+            raise SceneError(f"{where}: unknown OBJ statement {key!r}; a skeleton OBJ has "
+                             f"'v x y z [radius]' and 'l i j ...' lines", src)
+
+    nv = len(coords)
+    if not text.strip():
+        raise SceneError("the file is empty; expected OBJ polylines ('v x y z [radius]', 'l i j ...')", src)
+    if not segs:
+        raise SceneError("no line elements ('l i j ...'): the file describes no segments", src)
+    for (a, b), no in zip(segs, sline):
+        for i in (a, b):
+            if i >= nv:
+                raise SceneError(f"line {no}: {stmt[no]}: vertex index {i + 1} is out of range "
+                                 f"(the file has {nv} vertices)", src)
+    nodes = np.array(coords, dtype=np.float64).reshape(nv, 3)
+    seg_arr = np.array(segs, dtype=np.int64).reshape(-1, 2)
+    length = np.linalg.norm(nodes[seg_arr[:, 1]] - nodes[seg_arr[:, 0]], axis=1)
+    bad = np.nonzero(~(length > 0))[0]
+    if bad.size:
+        k = int(bad[0])
+        a, b = (int(i) for i in seg_arr[k])
+        why = (f"vertex {a + 1} is joined to itself" if a == b else
+               f"vertices {a + 1} and {b + 1} are both at {nodes[a].tolist()}")
+        raise SceneError(f"line {sline[k]}: {stmt[sline[k]]}: zero-length segment: {why}", src)
+
+    have = [r is not None for r in vradius]
+    if radius is None:
+        used = np.zeros(nv, dtype=bool)
+        used[seg_arr.ravel()] = True
+        lacking = [i for i in range(nv) if used[i] and not have[i]]
+        if lacking:
+            i = lacking[0]
+            if any(have):
+                raise SceneError(
+                    f"line {vline[i]}: vertex {i + 1} has no radius while other vertices have one; "
+                    f"add a 4th number 'v x y z radius' or pass --radius as a default", src)
+            raise SceneError("no vertex has a radius: write vertices as 'v x y z radius' "
+                             "or pass --radius", src)
+    default = float(radius) if radius is not None else math.nan
+    vr = np.array([default if r is None else r for r in vradius], dtype=np.float64)
+    return Skeleton(nodes, seg_arr, vr[seg_arr], source=src)
+
+
+def _fmt(x: float) -> str:
+    return repr(float(x))
+
+
+def _obj_text(skel: Skeleton, dst: str) -> str:
+    if skel.degree != DEFAULT_DEGREE or skel.sigma != DEFAULT_SIGMA:
+        raise OutputError(
+            f"{dst}: OBJ cannot store the kernel (degree {skel.degree}, sigma {skel.sigma}); "
+            f"save as .json, or use the default kernel (degree {DEFAULT_DEGREE}, sigma {DEFAULT_SIGMA})")
+    n = skel.n_nodes
+    node_r: list[float | None] = [None] * n
+    extra: dict[tuple[int, float], int] = {}
+    ends = np.zeros_like(skel.segments)
+    for s, ((a, b), (ra, rb)) in enumerate(zip(skel.segments.tolist(), skel.radii.tolist())):
+        for k, (i, r) in enumerate(((a, ra), (b, rb))):
+            if node_r[i] is None:
+                node_r[i] = r
+                ends[s, k] = i
+            elif node_r[i] == r:
+                ends[s, k] = i
+            else:  # another radius at the same node: a separate vertex, same point
+                ends[s, k] = extra.setdefault((i, r), n + len(extra))
+    out = ["# skelslice scene: OBJ polylines, units mm",
+           "# 'v x y z radius' (radius at this vertex), 'l i j' (one segment per line)"]
+    for p, r in zip(skel.nodes.tolist(), node_r):
+        out.append("v " + " ".join(_fmt(c) for c in p) + ("" if r is None else " " + _fmt(r)))
+    for (i, r) in extra:
+        out.append("v " + " ".join(_fmt(c) for c in skel.nodes[i].tolist()) + " " + _fmt(r))
+    out.extend(f"l {a + 1} {b + 1}" for a, b in ends.tolist())
+    return "\n".join(out) + "\n"
+
+
+# ----------------------------------------------------------------------------- atomic write
+def _write_atomic(dst: str, data: bytes) -> None:
+    directory = os.path.dirname(os.path.abspath(dst))
+    base = os.path.basename(dst)
+    tmp = None
+    try:
+        for _ in range(100):
+            candidate = os.path.join(directory, f".{base}.{secrets.token_hex(4)}.tmp")
+            try:
+                fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0),
+                             0o666)
+            except FileExistsError:
+                continue
+            tmp = candidate
+            break
+        else:  # pragma: no cover - 100 random name collisions
+            raise FileExistsError(f"could not create a temporary file in {directory}")
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, dst)
+        tmp = None
+    except OSError as exc:
+        raise OutputError(f"{dst}: cannot write the scene: {exc.strerror or exc}") from exc
+    finally:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+    try:  # make the rename itself durable; best effort
+        dfd = os.open(directory, os.O_RDONLY)
+    except OSError:  # pragma: no cover
+        return
+    try:
+        os.fsync(dfd)
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        os.close(dfd)
+
+
+__all__ = ["load_scene", "save_scene", "FORMAT_VERSION", "UNITS", "SUFFIXES"]
