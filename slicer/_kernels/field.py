@@ -26,6 +26,8 @@ import numpy as np
 from .._jit import kernel
 
 SCRATCH = 72
+# 1/k for k < 256: the moment series multiplies instead of dividing per term
+_RECIP = np.array([0.0] + [1.0 / k for k in range(1, 256)])
 # columns of the segment table
 AX, AY, AZ, UX, UY, UZ, LEN, TAU0, DELTA, TAU1 = range(10)
 NCOL = 10
@@ -138,20 +140,23 @@ def _moments(Y, d, l, nmax, J, Yp):
     z = d * Y
     if d == 0.0:
         for j in range(nmax + 1):
-            J[j] = Yp[j + 1] / (j + 1)
-    elif z <= 0.5:
-        # series for J[nmax], then the damping downward recurrence
+            J[j] = Yp[j + 1] * _RECIP[j + 1]
+    elif z <= 0.5 or z ** nmax <= 0.015625:
+        # series for J[nmax], then the damping downward recurrence.  The
+        # upward recurrence amplifies errors by up to z^-nmax, so it is only
+        # used once that is below 64 (z > 0.5 for n = 6; z > 0.77 for n = 16,
+        # where the series still converges in < 160 terms).
         s = 0.0
         zk = 1.0
         for k in range(200):
-            term = zk / (nmax + k + 1)
+            term = zk * _RECIP[nmax + k + 1]
             s += term
             if term < 1e-17 * s:
                 break
             zk *= z
         J[nmax] = Yp[nmax + 1] * s
         for j in range(nmax, 0, -1):
-            J[j - 1] = d * J[j] + Yp[j] / j
+            J[j - 1] = d * J[j] + Yp[j] * _RECIP[j]
     else:
         J[0] = math.log1p(d * l) / d
         for j in range(1, nmax + 1):
