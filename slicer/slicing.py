@@ -104,7 +104,8 @@ def numba_threads(n: int | None):
 
 
 def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int = 64,
-          threads: int | None = None, strict: bool = False, batch: int = 256) -> SliceResult:
+          threads: int | None = None, strict: bool = False, cut_support: bool = True,
+          batch: int = 256) -> SliceResult:
     """Classify every voxel centre of ``grid`` (no trimming).
 
     Parameters
@@ -120,6 +121,10 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
         Interval method only: do not rely on the unimodality of each
         primitive's field along a ray; bound every piece with the directional
         Lipschitz bound (slower, needs no unproven property).
+    cut_support : bool
+        Interval method: cut rays at every support entry and exit as well as at
+        each primitive's t* (tighter pieces, more breakpoints); False cuts at
+        t* only, as EG22 does.
     batch : int
         Buckets per kernel launch (bounds the run buffers' memory).
     """
@@ -145,7 +150,7 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
             chunk = todo[s:s + batch]
             cap = B * B * 4
             results = _run_batch(trace_buckets, METHODS[method], chunk, bk, grid, n, sigma, norm,
-                                 kmax, strict, cap, numba, RUNS_FULL)
+                                 kmax, strict, cut_support, cap, numba, RUNS_FULL)
             for bidx, nrun, rk0, rk1, ne in results:
                 nevals += ne
                 by, bx = divmod(int(bidx), bk.nbx)
@@ -174,7 +179,7 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
 
 
 def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, kmax, strict,
-               cap, numba, RUNS_FULL):
+               cut_support, cap, numba, RUNS_FULL):
     """Run the kernel on a batch of buckets, retrying overflowing ones with more room."""
     B = bk.size
     out = []
@@ -189,7 +194,7 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
             kern(code, pending, bk.nbx, B, grid.width, grid.height, bk.offsets, bk.ids, bk.table,
                  bk.boxes, grid.origin[0], grid.origin[1], grid.pixel_size[0],
                  grid.pixel_size[1], grid.origin[2], grid.layer_height, grid.layers, n, sigma, norm,
-                 kmax, strict, bk.longest(), cap, ray_nrun, run_k0, run_k1, stats)
+                 kmax, strict, cut_support, bk.longest(), cap, ray_nrun, run_k0, run_k1, stats)
         retry = []
         for q in range(nb):
             if stats[q, 0] == RUNS_FULL:

@@ -85,10 +85,12 @@ def test_every_voxel_matches_dense_reference(case, method):
         assert res.n_runs > 0
 
 
-def test_interval_strict_mode_is_exact_too():
-    skel, px, h = CASES["node_26_struts"]
+@pytest.mark.parametrize("kw", [{"strict": True}, {"cut_support": False}])
+@pytest.mark.parametrize("case", ["node_26_struts", "cone_ratio_100", "horizontal_on_layer"])
+def test_interval_variants_are_exact_too(case, kw):
+    skel, px, h = CASES[case]
     grid = make_grid(skel.support_bounds(), px, layer_height=h)
-    assert_exact(skel, grid, "interval", strict=True)
+    assert_exact(skel, grid, "interval", **kw)
 
 
 def test_random_lattice_all_methods_and_bucket_sizes():
@@ -99,8 +101,9 @@ def test_random_lattice_all_methods_and_bucket_sizes():
     skel = Skeleton(nodes, segs, radii)
     grid = make_grid(skel.support_bounds(), 0.09, 0.11, 0.07)
     vols = []
-    for method, bucket in [("interval", 8), ("interval", 0), ("sampling", 5), ("segment", 64)]:
-        res, _ = assert_exact(skel, grid, method, bucket=bucket)
+    for method, bucket, kw in [("interval", 8, {}), ("interval", 0, {}), ("interval", 16, {"cut_support": False}),
+                               ("interval", 16, {"strict": True}), ("sampling", 5, {}), ("segment", 64, {})]:
+        res, _ = assert_exact(skel, grid, method, bucket=bucket, **kw)
         vols.append(res.volume())
     for v in vols[1:]:
         assert np.array_equal(v, vols[0])

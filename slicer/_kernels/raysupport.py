@@ -13,8 +13,8 @@ from .._jit import kernel
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 
 # layout of the per-hit record returned in ``out`` by ray_support
-H_TIN, H_TOUT, H_TSTAR, H_LIP, H_S0, H_S1, H_TP0, H_TP1 = range(8)
-NHIT = 8
+H_TIN, H_TOUT, H_TSTAR, H_LIP, H_S0, H_S1, H_TP0, H_TP1, H_FMAX = range(9)
+NHIT = 9
 
 
 @kernel
@@ -85,10 +85,11 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, out):
         Kernel degree; ``sigma``, ``norm``: support factor and normalisation.
     kmax : float
         max |k'| (:func:`kprime_max`).
-    out : (8,) float64
+    out : (9,) float64
         Filled on a hit: t_in, t_out (padded outward), t* (cut), Lipschitz
         factor C (so that |f'| <= C * max(|D+|, |D-|) on a piece), skeleton
-        range s0, s1, and the projection t_proj(s) = tp0 + s tp1.
+        range s0, s1, the projection t_proj(s) = tp0 + s tp1, and fmax, an
+        upper bound of the field anywhere on the ray.
 
     Returns
     -------
@@ -204,6 +205,13 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, out):
         kp = kprime_abs(xmin, n, sigma, norm)
     tmin = tau0 + s0 * dtau
     out[H_LIP] = kp * L / (tmin * tmin)
+    # field bound on the whole ray: every skeleton point q(s), s in [s0, s1],
+    # is at homothetic distance >= xmin, so f <= k(xmin) * int ds L / tau(s)
+    if xmin >= sigma:
+        out[H_FMAX] = 0.0
+    else:
+        kx = norm * (1.0 - xmin * xmin / (sigma * sigma)) ** (n // 2)
+        out[H_FMAX] = kx * L * (s1 - s0) / tmin * (1.0 + 1e-12)
     out[H_S0] = s0
     out[H_S1] = s1
     out[H_TP0] = wd

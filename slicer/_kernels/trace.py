@@ -30,7 +30,7 @@ from numba import prange
 
 from .._jit import kernel, parallel_kernel
 from .field import SCRATCH, segment_eval
-from .raysupport import H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz, ray_support
+from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz, ray_support
 
 OK = 0
 RUNS_FULL = 1
@@ -144,9 +144,13 @@ def _sort_unique(vals, nv):
 
 @kernel
 def _piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
-    """Interval [Flo, Fhi] of the sum of the active primitives on [ta, tb]."""
+    """Interval [Flo, Fhi] of the sum of the active primitives on [ta, tb], and
+    the piece's monotonicity: +1 (every primitive increasing), -1 (every one
+    decreasing), 0 otherwise."""
     lo = 0.0
     hi = 0.0
+    n_inc = 0
+    n_dec = 0
     for s in range(ns):
         f0 = fa[s]
         f1 = fb[s]
@@ -155,9 +159,11 @@ def _piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
         if not strict and d1 > 0.0 and not d0 < 0.0:
             lo += f0
             hi += f1
+            n_inc += 1
         elif not strict and d0 < 0.0 and not d1 > 0.0:
             lo += f1
             hi += f0
+            n_dec += 1
         else:
             K = lipschitz(hrec[sarr[s]], ta, tb)
             w = K * (tb - ta)
@@ -166,11 +172,46 @@ def _piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
                 lo += max(0.0, 0.5 * (f0 + f1 - w))
             else:
                 lo += min(f0, f1)
-    return lo, hi
+            if f0 == 0.0 and f1 == 0.0 and w == 0.0:
+                # no contribution on this piece: neutral for monotonicity
+                n_inc += 1
+                n_dec += 1
+    mono = 0
+    if n_inc == ns:
+        mono = 1
+    elif n_dec == ns:
+        mono = -1
+    return lo, hi, mono
 
 
 @kernel
-def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict,
+def _hermite_root(ta, tb, ga, gb, da, db):
+    """Estimate of the root of g on [ta, tb] from g and g' at both ends
+    (cubic Hermite, a few safeguarded Newton steps from the secant point).
+    Only used to place the next split, so it needs no guarantee."""
+    w = tb - ta
+    if ga == gb:
+        return 0.5 * (ta + tb)
+    s = ga / (ga - gb)
+    # Hermite basis on [0, 1]
+    m0 = da * w
+    m1 = db * w
+    for _ in range(4):
+        s2 = s * s
+        s3 = s2 * s
+        p = (2 * s3 - 3 * s2 + 1) * ga + (s3 - 2 * s2 + s) * m0 + (-2 * s3 + 3 * s2) * gb + (s3 - s2) * m1
+        dp = (6 * s2 - 6 * s) * ga + (3 * s2 - 4 * s + 1) * m0 + (-6 * s2 + 6 * s) * gb + (3 * s2 - 2 * s) * m1
+        if dp == 0.0:
+            break
+        sn = s - p / dp
+        if not (sn >= 0.0 and sn <= 1.0):
+            break
+        s = sn
+    return ta + s * w
+
+
+@kernel
+def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict, cut_support,
                        scratch, hprim, hrec, order, bps, sarr, cur_f, cur_fp, st_f, st_fp,
                        st_kind, st_t, st_k0, st_k1, ct, cf, cfp, rk0, rk1, cap):
     """Classify the K voxel centres of one ray (interval method).
@@ -203,13 +244,17 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
         kc0 = _first_centre(cs, z0, h, K)
         kc1 = _first_centre(ce, z0, h, K) - 1
         if kc1 >= kc0:
-            # breakpoints: t_in, t_out and the cut t* of every member
-            nb = 0
+            # breakpoints: the cut t* of every member (EG22), and optionally
+            # every support entry and exit
+            bps[0] = cs
+            bps[1] = ce
+            nb = 2
             for c in range(a, b):
                 r = order[c]
-                bps[nb] = hrec[r, H_TIN]
-                bps[nb + 1] = hrec[r, H_TOUT]
-                nb += 2
+                if cut_support:
+                    bps[nb] = hrec[r, H_TIN]
+                    bps[nb + 1] = hrec[r, H_TOUT]
+                    nb += 2
                 ts = hrec[r, H_TSTAR]
                 if ts > hrec[r, H_TIN] and ts < hrec[r, H_TOUT]:
                     bps[nb] = ts
@@ -223,12 +268,15 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                 if k1 < k0:
                     continue
                 ns = 0
+                fmax = 0.0
                 for c in range(a, b):
                     r = order[c]
                     if hrec[r, H_TIN] < tb and hrec[r, H_TOUT] > ta:
                         sarr[ns] = r
                         ns += 1
-                if ns == 0:
+                        fmax += hrec[r, H_FMAX]
+                if ns == 0 or fmax < 1.0 - 1e-10 * (1.0 + fmax):
+                    # the primitives' bounds on the whole ray already exclude 1
                     continue
                 fcur, ne1 = _eval_set(seg, hprim, sarr, ns, px, py, ta, m, inv_s2, norm, scratch,
                                       cur_f, cur_fp, ct, cf, cfp)
@@ -256,8 +304,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     if q1 < q0:
                         done = True
                     else:
-                        lo, hi = _piece_bounds(hrec, sarr, ns, cur_f, cur_fp, st_f[p], st_fp[p],
-                                               tcur, e_t, strict)
+                        lo, hi, mono = _piece_bounds(hrec, sarr, ns, cur_f, cur_fp, st_f[p], st_fp[p],
+                                                     tcur, e_t, strict)
                         pad = 1e-10 * (1.0 + abs(hi))
                         if lo > 1.0 + pad:
                             nrun = _emit(q0, q1, True, rk0, rk1, nrun, cap)
@@ -283,8 +331,22 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             fcur += cur_f[s]
                         tcur = e_t
                         continue
-                    # split at the middle centre, which is classified by its value
+                    # split at a centre, which is classified by its value: where F is
+                    # monotone and brackets 1 (one crossing), at the centre nearest the
+                    # Hermite estimate of the crossing; elsewhere at the middle centre
                     km = (q0 + q1) // 2
+                    if mono != 0 and q1 > q0:
+                        fe = 0.0
+                        dcur = 0.0
+                        de = 0.0
+                        for s in range(ns):
+                            fe += st_f[p, s]
+                            dcur += cur_fp[s]
+                            de += st_fp[p, s]
+                        if (fcur - 1.0) * (fe - 1.0) < 0.0:
+                            tr = _hermite_root(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
+                            kr = int(math.floor((tr - z0) / h + 0.5))
+                            km = min(max(kr, q0), q1)
                     zm = z0 + km * h
                     if sp + 3 > st_kind.shape[0]:
                         # cannot happen for K < 2^70; keep the kernel total anyway
@@ -423,7 +485,7 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
 
 @parallel_kernel
 def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
-                  x0, y0, pxs, pys, z0, h, K, n, sigma, norm, kmax, strict, max_list,
+                  x0, y0, pxs, pys, z0, h, K, n, sigma, norm, kmax, strict, cut_support, max_list,
                   cap, ray_nrun, run_k0, run_k1, stats):
     """Trace every ray of the given buckets in parallel.
 
@@ -469,7 +531,7 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
         hprim = np.empty(nl, dtype=np.int64)
         hrec = np.empty((nl, NHIT))
         order = np.empty(nl, dtype=np.int64)
-        bps = np.empty(3 * nl + 2)
+        bps = np.empty(3 * nl + 4)
         sarr = np.empty(nl, dtype=np.int64)
         cur_f = np.empty(nl)
         cur_fp = np.empty(nl)
@@ -501,7 +563,7 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                 room = cap - used
                 if method == 0:
                     nr, ne = trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
-                                                kmax, strict, scratch, hprim, hrec, order, bps, sarr,
+                                                kmax, strict, cut_support, scratch, hprim, hrec, order, bps, sarr,
                                                 cur_f, cur_fp, st_f, st_fp, st_kind, st_t, st_k0,
                                                 st_k1, ct, cf, cfp, rk0, rk1, room)
                 elif method == 1:
