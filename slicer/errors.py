@@ -37,4 +37,23 @@ class OutputError(SkelsliceError, OSError):
     """An output cannot be written (exists, unwritable, disk full)."""
 
 
-__all__ = ["SkelsliceError", "SceneError", "GridError", "OutputError"]
+def positive_number(value, name: str, error: type[SkelsliceError]) -> float:
+    """``value`` as a finite float > 0, else ``error`` naming ``name`` and the value.
+
+    Booleans are refused (``True`` is not a size).
+    """
+    import math
+
+    shown = repr(value.item() if hasattr(value, "item") and not isinstance(value, (list, tuple)) else value)
+    if isinstance(value, bool) or type(value).__name__ == "bool_":
+        raise error(f"{name} must be a number > 0, got {shown}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise error(f"{name} must be a number > 0, got {shown}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise error(f"{name} must be a finite number > 0, got {shown}")
+    return v
+
+
+__all__ = ["SkelsliceError", "SceneError", "GridError", "OutputError", "positive_number"]

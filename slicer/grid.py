@@ -6,7 +6,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .errors import GridError
+from .errors import GridError, positive_number
 
 #: refuse jobs larger than this many voxels before any work starts
 MAX_VOXELS = 10**12
@@ -73,13 +73,7 @@ class SliceGrid:
 
 
 def _positive(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise GridError(f"{name} must be a number, got {value!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise GridError(f"{name} must be a finite number > 0, got {value!r}")
-    return v
+    return positive_number(value, name, GridError)
 
 
 def make_grid(support_box: np.ndarray, pixel_size: float, pixel_size_y: float | None = None,

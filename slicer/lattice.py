@@ -19,7 +19,7 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import SceneError
+from .errors import SceneError, positive_number
 from .skeleton import DEFAULT_DEGREE, DEFAULT_SIGMA, Skeleton
 
 #: names accepted by :func:`generate_lattice` (combine with ``+``, e.g. ``"bcc+cubic"``)
@@ -163,15 +163,7 @@ def _show(value) -> str:
 
 def check_positive(value, name: str) -> float:
     """``value`` as a finite float > 0, else SceneError naming ``name``."""
-    if isinstance(value, (bool, np.bool_)):
-        raise SceneError(f"{name} must be a number > 0, got {_show(value)}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise SceneError(f"{name} must be a number > 0, got {_show(value)}") from None
-    if not np.isfinite(v) or v <= 0:
-        raise SceneError(f"{name} must be a finite number > 0, got {_show(value)}")
-    return v
+    return positive_number(value, name, SceneError)
 
 
 def _numbers(value, n: int, name: str) -> np.ndarray:

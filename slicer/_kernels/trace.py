@@ -123,6 +123,35 @@ def _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, h
 
 
 @kernel
+def _next_cluster(hrec, order, a, nh):
+    """The cluster of overlapping supports starting at sorted hit ``a``.
+
+    Returns (b, cs, ce): hits order[a:b] overlap into the span [cs, ce]."""
+    cs = hrec[order[a], H_TIN]
+    ce = hrec[order[a], H_TOUT]
+    b = a + 1
+    while b < nh and hrec[order[b], H_TIN] < ce:
+        ce = max(ce, hrec[order[b], H_TOUT])
+        b += 1
+    return b, cs, ce
+
+
+@kernel
+def _cluster_field(seg, hprim, hrec, order, a, b, px, py, z, m, inv_s2, norm, scratch):
+    """Field at (px, py, z) of the cluster members order[a:b] whose support
+    interval holds z; returns (F, evaluations)."""
+    f = 0.0
+    nev = 0
+    for c in range(a, b):
+        r = order[c]
+        if hrec[r, H_TIN] < z and hrec[r, H_TOUT] > z:
+            fi, gx, gy, gz = segment_eval(seg, hprim[r], px, py, z, m, inv_s2, norm, False, scratch)
+            f += fi
+            nev += 1
+    return f, nev
+
+
+@kernel
 def _sort_unique(vals, nv):
     """Sort vals[:nv] in place and drop duplicates; returns the new count."""
     for a in range(1, nv):
@@ -234,13 +263,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     nev = 0
     a = 0
     while a < nh:
-        # cluster of overlapping supports
-        cs = hrec[order[a], H_TIN]
-        ce = hrec[order[a], H_TOUT]
-        b = a + 1
-        while b < nh and hrec[order[b], H_TIN] < ce:
-            ce = max(ce, hrec[order[b], H_TOUT])
-            b += 1
+        b, cs, ce = _next_cluster(hrec, order, a, nh)
         kc0 = _first_centre(cs, z0, h, K)
         kc1 = _first_centre(ce, z0, h, K) - 1
         if kc1 >= kc0:
@@ -427,25 +450,14 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
     nev = 0
     a = 0
     while a < nh:
-        cs = hrec[order[a], H_TIN]
-        ce = hrec[order[a], H_TOUT]
-        b = a + 1
-        while b < nh and hrec[order[b], H_TIN] < ce:
-            ce = max(ce, hrec[order[b], H_TOUT])
-            b += 1
+        b, cs, ce = _next_cluster(hrec, order, a, nh)
         k = _first_centre(cs, z0, h, K)
         kend = _first_centre(ce, z0, h, K)
         t = cs
         s = ce - cs
         while k < kend:
-            # field at t over the members whose support holds t
-            f = 0.0
-            for c in range(a, b):
-                r = order[c]
-                if hrec[r, H_TIN] < t and hrec[r, H_TOUT] > t:
-                    fi, gx, gy, gz = segment_eval(seg, hprim[r], px, py, t, m, inv_s2, norm, False, scratch)
-                    f += fi
-                    nev += 1
+            f, ne = _cluster_field(seg, hprim, hrec, order, a, b, px, py, t, m, inv_s2, norm, scratch)
+            nev += ne
             lam = 0.0
             for c in range(a, b):
                 r = order[c]
@@ -466,13 +478,8 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
                 s = 1.5 * step if step > 0.0 else h
             else:
                 # too close to a crossing to step over the next centre: evaluate it
-                fz = 0.0
-                for c in range(a, b):
-                    r = order[c]
-                    if hrec[r, H_TIN] < zk and hrec[r, H_TOUT] > zk:
-                        fi, gx, gy, gz = segment_eval(seg, hprim[r], px, py, zk, m, inv_s2, norm, False, scratch)
-                        fz += fi
-                        nev += 1
+                fz, ne = _cluster_field(seg, hprim, hrec, order, a, b, px, py, zk, m, inv_s2, norm, scratch)
+                nev += ne
                 nrun = _emit(k, k, fz >= 1.0, rk0, rk1, nrun, cap)
                 if nrun < 0:
                     return -1, nev
