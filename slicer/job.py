@@ -5,6 +5,7 @@ import time
 from pathlib import Path
 
 from . import __version__
+from .errors import GridError
 from .skeleton import Skeleton
 from .slicing import SliceResult, slice_skeleton
 
@@ -53,11 +54,26 @@ def run_slice(skel: Skeleton, out, *, pixel_size: float, pixel_size_y: float | N
               bucket: int = 64, threads: int | None = None, strict: bool = False,
               fmt: str | None = None, force: bool = False, scene_name: str | None = None,
               progress: bool | None = None) -> dict:
-    """Slice ``skel`` and write the layers to ``out``; returns a summary dict."""
+    """Slice ``skel`` and write the layers to ``out``; returns a summary dict.
+
+    Raises
+    ------
+    OutputError
+        ``out`` exists (without ``force``) or cannot be written; checked before
+        any work. Nothing is left at ``out`` on any failure.
+    GridError
+        Invalid sizes or bounds, a grid beyond the voxel limit (refused before
+        any work), or, with default bounds, a scene with no surface at all.
+    """
     from formats.base import check_destination
 
     check_destination(Path(out), force)   # fail before any work
     res = slice_skeleton(skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict)
+    if res.n_runs == 0 and bounds is None:
+        raise GridError(
+            "the surface is empty: no voxel centre is inside the solid (F >= 1). Struts shorter than "
+            "about 0.688 x their radius, or thinner than the pixel, have no printable surface; "
+            "see `skelslice info SCENE --pixel-size MM`")
     meta = {"generator": f"skelslice {__version__}", "method": method, "bucket": res.stats["bucket"]}
     if scene_name:
         meta["scene"] = scene_name

@@ -260,7 +260,7 @@ def slice_skeleton(skel: Skeleton, pixel_size: float, pixel_size_y: float | None
     >>> s = Skeleton([[0, 0, 0], [0, 0, 4]], [[0, 1]], [[1.0, 1.0]])
     >>> r = slice_skeleton(s, 0.25)
     >>> r.grid.width, r.grid.layers
-    (11, 25)
+    (9, 21)
     """
     if skel.n_segments == 0:
         raise GridError("the scene has no segments: nothing to slice")

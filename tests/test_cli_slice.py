@@ -1,0 +1,161 @@
+"""``skelslice slice`` through the real entry point: outputs and failure modes."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from slicer import Skeleton
+from slicer.cli import main
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    p = tmp_path_factory.mktemp("scene") / "y.json"
+    Skeleton([[0, 0, 0], [0, 0, 2], [1, 0, 3], [-1, 0, 3]], [[0, 1], [1, 2], [1, 3]],
+             [[0.4, 0.3], [0.3, 0.2], [0.3, 0.2]]).save(p)
+    return p
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def assert_refused(r, *needles):
+    assert r.exit_code == 2, (r.exit_code, r.output)
+    assert "Traceback" not in r.output
+    for n in needles:
+        assert n in r.output, (n, r.output)
+
+
+def test_slice_writes_stack_and_layout(scene, tmp_path):
+    out = tmp_path / "stack"
+    r = run("slice", scene, "-o", out, "--pixel-size", "0.1", "--layer-height", "0.15")
+    assert r.exit_code == 0, r.output
+    meta = json.loads((out / "slices.json").read_text())
+    assert meta["pixel_size"] == [0.1, 0.1] and meta["layer_height"] == 0.15
+    assert len(meta["files"]) == meta["layers"] > 0
+    assert all((out / f).is_file() for f in meta["files"])
+    assert meta["method"] == "interval"
+
+
+@pytest.mark.parametrize("method", ["sampling", "segment"])
+def test_baselines_write_identical_layers(scene, tmp_path, method):
+    outs = []
+    for m in ("interval", method):
+        out = tmp_path / m
+        assert run("slice", scene, "-o", out, "--pixel-size", "0.09", "--method", m, "-q").exit_code == 0
+        outs.append(out)
+    files = json.loads((outs[0] / "slices.json").read_text())["files"]
+    for f in files:
+        assert (outs[0] / f).read_bytes() == (outs[1] / f).read_bytes()
+
+
+def test_absurd_grid_refused_before_any_work(scene, tmp_path):
+    out = tmp_path / "huge"
+    r = run("slice", scene, "-o", out, "--pixel-size", "1e-6")
+    assert_refused(r, "voxels", "limit")
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("flag,value,needle", [
+    ("--pixel-size", "-0.1", "pixel size must be a finite number > 0, got -0.1"),
+    ("--pixel-size", "nan", "pixel size must be a finite number > 0"),
+    ("--layer-height", "0", "layer height must be a finite number > 0, got 0"),
+    ("--pixel-size-y", "-1", "pixel size y must be a finite number > 0, got -1"),
+])
+def test_bad_sizes(scene, tmp_path, flag, value, needle):
+    args = ["slice", scene, "-o", tmp_path / "o", "--pixel-size", "0.1", flag, value]
+    assert_refused(run(*args), needle)
+
+
+def test_bad_bounds(scene, tmp_path):
+    r = run("slice", scene, "-o", tmp_path / "o", "--pixel-size", "0.1", "--bounds", "1", "0", "0", "0", "1", "1")
+    assert_refused(r, "X1 > X0")
+
+
+@pytest.mark.parametrize("args", [["--method", "magic"], ["--threads", "0"], ["--bucket", "-3"]])
+def test_bad_options_are_usage_errors(scene, tmp_path, args):
+    assert_refused(run("slice", scene, "-o", tmp_path / "o", "--pixel-size", "0.1", *args))
+
+
+def test_existing_output_is_never_replaced_without_force(scene, tmp_path):
+    out = tmp_path / "stack"
+    out.mkdir()
+    (out / "precious.txt").write_text("keep me")
+    assert_refused(run("slice", scene, "-o", out, "--pixel-size", "0.1"), "already exists", "--force")
+    assert (out / "precious.txt").read_text() == "keep me"
+    r = run("slice", scene, "-o", out, "--pixel-size", "0.1", "--force", "-q")
+    assert r.exit_code == 0, r.output
+    assert not (out / "precious.txt").exists() and (out / "slices.json").exists()
+
+
+def test_missing_output_folder(scene, tmp_path):
+    assert_refused(run("slice", scene, "-o", tmp_path / "no" / "such" / "dir", "--pixel-size", "0.1"),
+                   "does not exist")
+
+
+def test_scene_without_surface_is_refused(tmp_path):
+    p = tmp_path / "short.json"
+    Skeleton([[0, 0, 0], [0.3, 0, 0]], [[0, 1]], [[0.6, 0.6]]).save(p)
+    out = tmp_path / "o"
+    assert_refused(run("slice", p, "-o", out, "--pixel-size", "0.05"), "surface is empty")
+    assert not out.exists()
+
+
+def test_bad_scene_through_slice(tmp_path):
+    p = tmp_path / "bad.json"
+    p.write_text('{"skelslice": 1, "units": "mm", "nodes": [[0,0,0],[0,0,1]], "segments": [[0, 5]], '
+                 '"radii": [1, 1]}')
+    assert_refused(run("slice", p, "-o", tmp_path / "o", "--pixel-size", "0.1"), "bad.json", "segments[0][1]", "5")
+
+
+def test_failure_mid_write_leaves_nothing(scene, tmp_path, monkeypatch):
+    """A crash while layers are being written leaves no output and no temporary folder."""
+    from formats.png_stack import PngStackWriter
+    from slicer.job import run_slice
+    from slicer import load_scene
+
+    real = PngStackWriter.write_layer
+
+    def flaky(self, k, image):
+        if k == 3:
+            raise KeyboardInterrupt  # as if the user pressed Ctrl-C
+        return real(self, k, image)
+
+    monkeypatch.setattr(PngStackWriter, "write_layer", flaky)
+    out = tmp_path / "stack"
+    with pytest.raises(KeyboardInterrupt):
+        run_slice(load_scene(scene), out, pixel_size=0.1, progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_killed_process_leaves_no_output(scene, tmp_path):
+    """SIGKILL during the write: the final folder never appears half-written."""
+    import signal
+    import time
+
+    out = tmp_path / "stack"
+    big = tmp_path / "big.json"
+    from slicer.lattice import generate_lattice
+    generate_lattice("bcc", cells=(3, 3, 3), cell_size=4.0, radius=0.5).save(big)
+    proc = subprocess.Popen([sys.executable, "-m", "slicer", "slice", str(big), "-o", str(out),
+                             "--pixel-size", "0.02", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # wait until the temporary folder holds some layers, then kill
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        tmps = [p for p in tmp_path.iterdir() if p.name.startswith(".stack.tmp-")]
+        if tmps and len(list(tmps[0].glob("*.png"))) > 5:
+            break
+        if proc.poll() is not None:
+            break
+        time.sleep(0.05)
+    if proc.poll() is not None:
+        pytest.skip("the job finished before it could be interrupted")
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not out.exists()
