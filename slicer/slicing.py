@@ -140,6 +140,7 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
     todo = bk.nonempty()
     # biggest buckets first: with chunk size 1 the threads share the load evenly
     todo = todo[np.argsort(-np.diff(bk.offsets)[todo], kind="stable")]
+    ly, lx = np.divmod(np.arange(B * B), B)   # local row/column of each ray in a bucket
     pix_parts, k0_parts, k1_parts = [], [], []
     nevals = 0
     t0 = time.perf_counter()
@@ -154,7 +155,6 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
             for bidx, nrun, rk0, rk1, ne in results:
                 nevals += ne
                 by, bx = divmod(int(bidx), bk.nbx)
-                ly, lx = np.divmod(np.arange(B * B), B)
                 i = bx * B + lx
                 j = by * B + ly
                 has = nrun > 0

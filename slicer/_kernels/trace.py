@@ -303,7 +303,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     continue
                 fcur, ne1 = _eval_set(seg, hprim, sarr, ns, px, py, ta, m, inv_s2, norm, scratch,
                                       cur_f, cur_fp, ct, cf, cfp)
-                fb, ne2 = _eval_set(seg, hprim, sarr, ns, px, py, tb, m, inv_s2, norm, scratch,
+                _, ne2 = _eval_set(seg, hprim, sarr, ns, px, py, tb, m, inv_s2, norm, scratch,
                                     st_f[0], st_fp[0], ct, cf, cfp)
                 nev += ne1 + ne2
                 tcur = ta
