@@ -39,7 +39,17 @@ class SliceResult:
         and disjoint; runs are sorted by pixel.
     stats : dict
         ``method``, ``bucket``, ``evaluations`` (primitive evaluations),
-        ``trace_seconds``, ``threads``.
+        ``trace_seconds``, ``threads`` (and ``span_tol`` with spans).
+    span_pix : (s,) int64 or None
+        With ``spans=True``: flat pixel index of each inside span.
+    span_t0, span_t1 : (s,) float64 or None, mm
+        Each span is the real interval ``[t0, t1]`` of heights along the
+        pixel column where F >= 1, clipped to the grid's z range
+        ``[z0 - h/2, z0 + (layers - 1/2) h]``; each end lies within
+        ``span_tol`` of a true crossing (ends at the clip planes are exact).
+        Sorted by pixel, then height; spans of a pixel are disjoint. Voxel
+        centre k is inside exactly when it lies in a span. Spans thinner
+        than ``span_tol`` may be missed.
     """
 
     grid: SliceGrid
@@ -47,6 +57,13 @@ class SliceResult:
     k0: np.ndarray
     k1: np.ndarray
     stats: dict = field(default_factory=dict)
+    span_pix: np.ndarray | None = None
+    span_t0: np.ndarray | None = None
+    span_t1: np.ndarray | None = None
+
+    @property
+    def has_spans(self) -> bool:
+        return self.span_pix is not None
 
     @property
     def n_runs(self) -> int:
@@ -73,6 +90,54 @@ class SliceResult:
             if e > s:
                 img[ev_pix[s:e]] = ev_val[s:e]
             yield img.reshape(g.height, g.width).copy()
+
+    def iter_coverage(self) -> Iterator[np.ndarray]:
+        """Yield, per layer, the inside fraction of each voxel's z extent.
+
+        Voxel (i, j, k) spans heights ``[z_k - h/2, z_k + h/2]``; its coverage
+        is the total length of the pixel's inside spans within that range,
+        divided by h: a (height, width) float64 array in [0, 1]. Needs a
+        result traced with ``spans=True``. Memory: O(spans) + one layer.
+        """
+        if not self.has_spans:
+            raise GridError("coverage needs spans: trace with spans=True (interval method)")
+        g = self.grid
+        K, h = g.layers, g.layer_height
+        npx = g.width * g.height
+        if K == 0:
+            return
+        # layer-relative coordinates: voxel k covers [k, k + 1)
+        u0 = (self.span_t0 - g.origin[2]) / h + 0.5
+        u1 = (self.span_t1 - g.origin[2]) / h + 0.5
+        ka = np.clip(np.floor(u0).astype(np.int64), 0, K - 1)
+        kb = np.clip(np.floor(u1).astype(np.int64), 0, K - 1)
+        # partial contributions: the first and last layer of each span
+        same = ka == kb
+        part_k = np.concatenate([ka, kb[~same]])
+        part_pix = np.concatenate([self.span_pix, self.span_pix[~same]])
+        part_v = np.concatenate([np.where(same, u1 - u0, (ka + 1) - u0), (u1 - kb)[~same]])
+        order = np.argsort(part_k, kind="stable")
+        part_k, part_pix, part_v = part_k[order], part_pix[order], part_v[order]
+        pb = np.searchsorted(part_k, np.arange(K + 1))
+        # fully covered layers ka < k < kb: +1 from ka + 1, -1 from kb
+        full = ~same & (kb > ka + 1)
+        ev_k = np.concatenate([ka[full] + 1, kb[full]])
+        ev_pix = np.concatenate([self.span_pix[full], self.span_pix[full]])
+        ev_d = np.concatenate([np.ones(int(full.sum()), np.int32), -np.ones(int(full.sum()), np.int32)])
+        order = np.argsort(ev_k, kind="stable")
+        ev_k, ev_pix, ev_d = ev_k[order], ev_pix[order], ev_d[order]
+        eb = np.searchsorted(ev_k, np.arange(K + 1))
+        count = np.zeros(npx, np.int32)
+        for k in range(K):
+            s, e = eb[k], eb[k + 1]
+            if e > s:
+                np.add.at(count, ev_pix[s:e], ev_d[s:e])
+            cov = count.astype(np.float64)
+            s, e = pb[k], pb[k + 1]
+            if e > s:
+                np.add.at(cov, part_pix[s:e], part_v[s:e])
+            np.clip(cov, 0.0, 1.0, out=cov)
+            yield cov.reshape(g.height, g.width)
 
     def volume(self) -> np.ndarray:
         """The whole voxel volume, (layers, height, width) bool. For tests and
@@ -105,7 +170,7 @@ def numba_threads(n: int | None):
 
 def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int = 64,
           threads: int | None = None, strict: bool = False, cut_support: bool = True,
-          batch: int = 256) -> SliceResult:
+          batch: int = 256, spans: bool = False, span_tol: float | None = None) -> SliceResult:
     """Classify every voxel centre of ``grid`` (no trimming).
 
     Parameters
@@ -127,12 +192,19 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
         t* only, as EG22 does.
     batch : int
         Buckets per kernel launch (bounds the run buffers' memory).
+    spans : bool
+        Interval method only: also return the real-valued inside spans of
+        every pixel column (see :class:`SliceResult`).
+    span_tol : float, optional, mm
+        Position tolerance of the span ends (default ``layer_height / 64``;
+        at least ``layer_height / 65536``).
     """
     from ._kernels.raysupport import kprime_max
     from ._kernels.trace import RUNS_FULL, trace_buckets
 
     if method not in METHODS:
         raise GridError(f"unknown method {method!r}; choose one of {sorted(METHODS)}")
+    span_tol = _check_spans(method, spans, span_tol, grid.layer_height)
     bk = build_buckets(skel, grid, bucket)
     B = bk.size
     n, sigma, norm = skel.degree, skel.sigma, skel.normalisation
@@ -142,6 +214,7 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
     todo = todo[np.argsort(-np.diff(bk.offsets)[todo], kind="stable")]
     ly, lx = np.divmod(np.arange(B * B), B)   # local row/column of each ray in a bucket
     pix_parts, k0_parts, k1_parts = [], [], []
+    xpix_parts, xz_parts = [], []
     nevals = 0
     t0 = time.perf_counter()
     with numba_threads(threads) as nthreads:
@@ -151,17 +224,17 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
             chunk = todo[s:s + batch]
             cap = B * B * 4
             results = _run_batch(trace_buckets, METHODS[method], chunk, bk, grid, n, sigma, norm,
-                                 kmax, strict, cut_support, cap, numba, RUNS_FULL)
-            for bidx, nrun, rk0, rk1, ne in results:
+                                 kmax, strict, cut_support, cap, numba, RUNS_FULL, spans, span_tol)
+            for bidx, nrun, rk0, rk1, ne, nx, xz in results:
                 nevals += ne
                 by, bx = divmod(int(bidx), bk.nbx)
-                i = bx * B + lx
-                j = by * B + ly
-                has = nrun > 0
-                p = (j * grid.width + i)[has]
-                pix_parts.append(np.repeat(p, nrun[has]))
+                ray_pix = (by * B + ly) * grid.width + (bx * B + lx)
+                pix_parts.append(np.repeat(ray_pix, nrun))
                 k0_parts.append(rk0)
                 k1_parts.append(rk1)
+                if spans:
+                    xpix_parts.append(np.repeat(ray_pix, nx))
+                    xz_parts.append(xz)
     elapsed = time.perf_counter() - t0
     if pix_parts:
         pix = np.concatenate(pix_parts).astype(np.int64)
@@ -175,61 +248,139 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
         k1 = np.zeros(0, np.int64)
     stats = {"method": method, "bucket": B, "evaluations": int(nevals),
              "trace_seconds": elapsed, "threads": int(nthreads)}
-    return SliceResult(grid, pix, k0, k1, stats)
+    res = SliceResult(grid, pix, k0, k1, stats)
+    if spans:
+        stats["span_tol"] = span_tol
+        res.span_pix, res.span_t0, res.span_t1 = _pair_crossings(grid, xpix_parts, xz_parts)
+    return res
+
+
+def _check_spans(method: str, spans: bool, span_tol, layer_height: float):
+    """Validate the span options; returns the tolerance in mm (None without spans)."""
+    if not spans:
+        return None
+    if method != "interval":
+        raise GridError(f"spans (sub-layer crossings) need method 'interval', not {method!r}")
+    if span_tol is None:
+        return layer_height / 64.0
+    span_tol = float(span_tol)
+    if not (span_tol >= layer_height / 65536.0 and span_tol <= layer_height):
+        raise GridError(f"span tolerance must lie in [layer_height/65536, layer_height] = "
+                        f"[{layer_height / 65536.0:g}, {layer_height:g}] mm, got {span_tol!r}")
+    return span_tol
+
+
+def _pair_crossings(grid: SliceGrid, xpix_parts, xz_parts):
+    """Inside spans from each ray's sorted crossings (entry, exit, entry, ...),
+    clipped to the grid's z range; sorted by pixel then height."""
+    if not xpix_parts:
+        e = np.zeros(0)
+        return np.zeros(0, np.int64), e, e.copy()
+    xpix = np.concatenate(xpix_parts).astype(np.int64)
+    xz = np.concatenate(xz_parts)
+    order = np.argsort(xpix, kind="stable")    # each ray's crossings are already in order
+    xpix, xz = xpix[order], xz[order]
+    if len(xpix) % 2:
+        raise RuntimeError("internal error: odd number of crossings")   # pragma: no cover
+    pix, t0, t1 = xpix[0::2], xz[0::2], xz[1::2]
+    if np.any(pix != xpix[1::2]):
+        raise RuntimeError("internal error: a ray has an odd number of crossings")  # pragma: no cover
+    h = grid.layer_height
+    zlo = grid.origin[2] - 0.5 * h
+    zhi = grid.origin[2] + (grid.layers - 0.5) * h
+    t0 = np.maximum(t0, zlo)
+    t1 = np.minimum(t1, zhi)
+    keep = t1 > t0
+    return pix[keep], t0[keep], t1[keep]
 
 
 def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, kmax, strict,
-               cut_support, cap, numba, RUNS_FULL):
-    """Run the kernel on a batch of buckets, retrying overflowing ones with more room."""
+               cut_support, cap, numba, RUNS_FULL, spans=False, span_tol=None):
+    """Run the kernel on a batch of buckets, retrying overflowing ones with more room.
+
+    Returns, per bucket, ``(bucket, runs per ray, k0, k1, evaluations,
+    crossings per ray, crossing heights)``.
+    """
     B = bk.size
     out = []
     pending = chunk
-    while len(pending):
+    xcap = cap if spans else 1
+    for _ in range(16):
+        if not len(pending):
+            return out
         nb = len(pending)
         ray_nrun = np.zeros((nb, B * B), np.int64)
         run_k0 = np.zeros((nb, cap), np.int32)
         run_k1 = np.zeros((nb, cap), np.int32)
         stats = np.zeros((nb, 2), np.int64)
+        ray_nx = np.zeros((nb, B * B), np.int64)
+        cross_z = np.zeros((nb, xcap))
         with numba.parallel_chunksize(1):
             kern(code, pending, bk.nbx, B, grid.width, grid.height, bk.offsets, bk.ids, bk.table,
                  bk.boxes, grid.origin[0], grid.origin[1], grid.pixel_size[0],
                  grid.pixel_size[1], grid.origin[2], grid.layer_height, grid.layers, n, sigma, norm,
-                 kmax, strict, cut_support, bk.longest(), cap, ray_nrun, run_k0, run_k1, stats)
+                 kmax, strict, cut_support, bk.longest(), cap, ray_nrun, run_k0, run_k1, stats,
+                 spans, span_tol if spans else 0.0, xcap, ray_nx, cross_z)
         retry = []
         for q in range(nb):
             if stats[q, 0] == RUNS_FULL:
                 retry.append(pending[q])
                 continue
             used = int(ray_nrun[q].sum())
-            out.append((pending[q], ray_nrun[q], run_k0[q, :used], run_k1[q, :used], int(stats[q, 1])))
+            xused = int(ray_nx[q].sum())
+            out.append((pending[q], ray_nrun[q], run_k0[q, :used], run_k1[q, :used], int(stats[q, 1]),
+                        ray_nx[q], cross_z[q, :xused].copy()))
         pending = np.array(retry, dtype=np.int64)
         cap *= 4
-    return out
+        if spans:
+            xcap *= 4
+    raise RuntimeError("internal error: the tracer's buffers kept overflowing")  # pragma: no cover
 
 
 def trim(result: SliceResult, margin: int = 1) -> SliceResult:
-    """Crop a result to its inside voxels plus ``margin`` empty voxels per side
-    (clipped to the traced grid). An empty result keeps its XY size and gets
-    zero layers."""
+    """Crop a result to its inside voxels (and spans) plus ``margin`` empty
+    voxels per side (clipped to the traced grid). An empty result keeps its
+    XY size and gets zero layers."""
     g = result.grid
-    if result.n_runs == 0:
-        return SliceResult(g.sub(0, 0, 0, g.width, g.height, 0), result.pix, result.k0, result.k1,
-                           dict(result.stats))
-    j, i = np.divmod(result.pix, g.width)
+    sp = result.has_spans and len(result.span_pix) > 0
+    if result.n_runs == 0 and not sp:
+        out = SliceResult(g.sub(0, 0, 0, g.width, g.height, 0), result.pix, result.k0, result.k1,
+                          dict(result.stats))
+        if result.has_spans:
+            out.span_pix, out.span_t0, out.span_t1 = result.span_pix, result.span_t0, result.span_t1
+        return out
+    pix_all = result.pix
+    klo, khi = [], []
+    if result.n_runs:
+        klo.append(int(result.k0.min()))
+        khi.append(int(result.k1.max()) - 1)
+    if sp:
+        pix_all = np.concatenate([pix_all, result.span_pix])
+        u = (np.array([result.span_t0.min(), result.span_t1.max()]) - g.origin[2]) / g.layer_height + 0.5
+        klo.append(int(np.floor(u[0])))
+        khi.append(min(int(np.floor(u[1])), g.layers - 1))
+    j, i = np.divmod(pix_all, g.width)
     i0 = max(int(i.min()) - margin, 0)
     i1 = min(int(i.max()) + margin, g.width - 1)
     j0 = max(int(j.min()) - margin, 0)
     j1 = min(int(j.max()) + margin, g.height - 1)
-    k0 = max(int(result.k0.min()) - margin, 0)
-    k1 = min(int(result.k1.max()) - 1 + margin, g.layers - 1)
+    k0 = max(min(klo) - margin, 0)
+    k1 = min(max(khi) + margin, g.layers - 1)
     sub = g.sub(i0, j0, k0, i1 - i0 + 1, j1 - j0 + 1, k1 - k0 + 1)
+    j, i = np.divmod(result.pix, g.width)
     pix = (j - j0) * sub.width + (i - i0)
-    return SliceResult(sub, pix, result.k0 - k0, result.k1 - k0, dict(result.stats))
+    out = SliceResult(sub, pix, result.k0 - k0, result.k1 - k0, dict(result.stats))
+    if result.has_spans:
+        j, i = np.divmod(result.span_pix, g.width)
+        out.span_pix = (j - j0) * sub.width + (i - i0)
+        out.span_t0, out.span_t1 = result.span_t0, result.span_t1
+    return out
 
 
 def slice_skeleton(skel: Skeleton, pixel_size: float, pixel_size_y: float | None = None,
                    layer_height: float | None = None, bounds=None, method: str = "interval",
-                   bucket: int = 64, threads: int | None = None, strict: bool = False) -> SliceResult:
+                   bucket: int = 64, threads: int | None = None, strict: bool = False,
+                   spans: bool = False, span_tol: float | None = None) -> SliceResult:
     """Slice a skeleton into voxel layers, every voxel centre classified exactly.
 
     Parameters
@@ -250,6 +401,9 @@ def slice_skeleton(skel: Skeleton, pixel_size: float, pixel_size_y: float | None
     threads : int, optional
     strict : bool
         See :func:`trace`.
+    spans, span_tol
+        Real-valued inside spans per pixel column, ends to ``span_tol`` mm
+        (default layer height / 64); interval method only. See :func:`trace`.
 
     Returns
     -------
@@ -265,7 +419,8 @@ def slice_skeleton(skel: Skeleton, pixel_size: float, pixel_size_y: float | None
     if skel.n_segments == 0:
         raise GridError("the scene has no segments: nothing to slice")
     grid = make_grid(skel.support_bounds(), pixel_size, pixel_size_y, layer_height, bounds)
-    res = trace(skel, grid, method=method, bucket=bucket, threads=threads, strict=strict)
+    res = trace(skel, grid, method=method, bucket=bucket, threads=threads, strict=strict,
+                spans=spans, span_tol=span_tol)
     return res if bounds is not None else trim(res)
 
 

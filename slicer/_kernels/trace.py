@@ -18,8 +18,8 @@ Three methods share buckets, field and output:
   (Galin et al. 2020), stepping over centres the bound proves unambiguous and
   evaluating the rest.
 
-Status codes: 0 ok, 1 run buffer full (caller retries with more room),
-2 hit buffer too small.
+Status codes: 0 ok, 1 run or crossing buffer full (caller retries with
+more room).
 """
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz, ray_sup
 OK = 0
 RUNS_FULL = 1
 
-MAX_STACK = 160
+MAX_STACK = 256
 
 
 @kernel
@@ -242,15 +242,27 @@ def _hermite_root(ta, tb, ga, gb, da, db):
 @kernel
 def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict, cut_support,
                        scratch, hprim, hrec, order, bps, sarr, cur_f, cur_fp, st_f, st_fp,
-                       st_kind, st_t, st_k0, st_k1, ct, cf, cfp, rk0, rk1, cap):
+                       st_kind, st_t, st_k0, st_k1, ct, cf, cfp, rk0, rk1, cap, spans, span_tol, cz, xcap):
     """Classify the K voxel centres of one ray (interval method).
+
+    With ``spans``, also locate every crossing of F = 1 inside the grid's z
+    range [z0 - h/2, z0 + (K - 1/2) h] to within ``span_tol``: ambiguous
+    pieces holding no centre are split further (at a Hermite estimate of
+    the crossing, offset by span_tol / 2, or at the middle) until they are
+    settled or narrower than ``span_tol``. Crossings go to ``cz`` in
+    increasing order; the ray is outside below the first one, and they
+    alternate entry / exit. A ray inside at the grid's bottom (or top)
+    gets a crossing exactly there.
 
     Returns
     -------
     nrun : int
-        Number of runs written to rk0/rk1 (-1 when ``cap`` was too small).
+        Number of runs written to rk0/rk1 (-1 when ``cap`` or ``xcap`` was
+        too small).
     nevals : int
         Primitive evaluations performed.
+    nx : int
+        Number of crossings written to ``cz``.
     """
     m = n // 2
     inv_s2 = 1.0 / (sigma * sigma)
@@ -261,17 +273,26 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
         ct[r] = math.nan
     nrun = 0
     nev = 0
+    nx = 0
+    inside = False      # spans: the class of the last point whose value is known
     a = 0
     while a < nh:
         b, cs, ce = _next_cluster(hrec, order, a, nh)
         kc0 = _first_centre(cs, z0, h, K)
         kc1 = _first_centre(ce, z0, h, K) - 1
-        if kc1 >= kc0:
+        if kc1 >= kc0 or (spans and ce > zlo and cs < zhi):
             # breakpoints: the cut t* of every member (EG22), and optionally
-            # every support entry and exit
+            # every support entry and exit; with spans, the grid's z range
             bps[0] = cs
             bps[1] = ce
             nb = 2
+            if spans:
+                if zlo > cs and zlo < ce:
+                    bps[nb] = zlo
+                    nb += 1
+                if zhi > cs and zhi < ce:
+                    bps[nb] = zhi
+                    nb += 1
             for c in range(a, b):
                 r = order[c]
                 if cut_support:
@@ -283,12 +304,13 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     bps[nb] = ts
                     nb += 1
             nb = _sort_unique(bps, nb)
+            tlast = cs
             for j in range(nb - 1):
                 ta = bps[j]
                 tb = bps[j + 1]
                 k0 = _first_centre(ta, z0, h, K)
                 k1 = _first_centre(tb, z0, h, K) - 1
-                if k1 < k0:
+                if k1 < k0 and not (spans and tb > zlo and ta < zhi):
                     continue
                 ns = 0
                 fmax = 0.0
@@ -306,6 +328,13 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                 _, ne2 = _eval_set(seg, hprim, sarr, ns, px, py, tb, m, inv_s2, norm, scratch,
                                     st_f[0], st_fp[0], ct, cf, cfp)
                 nev += ne1 + ne2
+                if spans and (fcur >= 1.0) != inside:
+                    # only after a skipped stretch (below the grid): enter here
+                    if nx >= xcap:
+                        return -1, nev, nx
+                    cz[nx] = ta
+                    nx += 1
+                    inside = not inside
                 tcur = ta
                 sp = 1
                 st_kind[0] = 0
@@ -318,13 +347,13 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     if st_kind[p] == 1:
                         nrun = _emit(st_k0[p], st_k0[p], st_k1[p] == 1, rk0, rk1, nrun, cap)
                         if nrun < 0:
-                            return -1, nev
+                            return -1, nev, nx
                         continue
                     e_t = st_t[p]
                     q0 = st_k0[p]
                     q1 = st_k1[p]
                     done = False
-                    if q1 < q0:
+                    if q1 < q0 and not spans:
                         done = True
                     else:
                         lo, hi, mono = _piece_bounds(hrec, sarr, ns, cur_f, cur_fp, st_f[p], st_fp[p],
@@ -335,23 +364,71 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             done = True
                         elif hi < 1.0 - pad:
                             done = True
+                        elif q1 < q0:
+                            # spans: no centre left; refine the crossing(s) to span_tol
+                            if e_t - tcur <= span_tol or e_t <= zlo or tcur >= zhi:
+                                done = True
+                            else:
+                                if sp + 2 > st_kind.shape[0]:
+                                    return -1, nev, nx
+                                fe = 0.0
+                                dcur = 0.0
+                                de = 0.0
+                                for s in range(ns):
+                                    fe += st_f[p, s]
+                                    dcur += cur_fp[s]
+                                    de += st_fp[p, s]
+                                w = e_t - tcur
+                                ts = tcur + 0.5 * w
+                                if mono != 0 and (fcur - 1.0) * (fe - 1.0) < 0.0:
+                                    tr = _hermite_root(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
+                                    if tr - tcur <= e_t - tr:
+                                        ts = tr + 0.5 * span_tol
+                                    else:
+                                        ts = tr - 0.5 * span_tol
+                                    ts = min(max(ts, tcur + 0.125 * w), e_t - 0.125 * w)
+                                fm, ne1 = _eval_set(seg, hprim, sarr, ns, px, py, ts, m, inv_s2, norm,
+                                                    scratch, st_f[p + 1], st_fp[p + 1], ct, cf, cfp)
+                                nev += ne1
+                                st_kind[p + 1] = 0
+                                st_t[p + 1] = ts
+                                st_k0[p + 1] = q0
+                                st_k1[p + 1] = q1
+                                sp = p + 2
+                                continue
                         elif z0 + q0 * h == tcur:
                             # the first centre sits on the left end: its value is known
                             nrun = _emit(q0, q0, fcur >= 1.0, rk0, rk1, nrun, cap)
                             st_k0[p] = q0 + 1
                             sp += 1
                             if nrun < 0:
-                                return -1, nev
+                                return -1, nev, nx
                             continue
                     if nrun < 0:
-                        return -1, nev
+                        return -1, nev, nx
                     if done:
+                        fe = 0.0
+                        for s in range(ns):
+                            fe += st_f[p, s]
+                        if spans and (fe >= 1.0) != inside:
+                            # one crossing (an odd number) in (tcur, e_t): place it
+                            dcur = 0.0
+                            de = 0.0
+                            for s in range(ns):
+                                dcur += cur_fp[s]
+                                de += st_fp[p, s]
+                            tr = _hermite_root(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
+                            if not (tr > tcur and tr < e_t):
+                                tr = 0.5 * (tcur + e_t)
+                            if nx >= xcap:
+                                return -1, nev, nx
+                            cz[nx] = tr
+                            nx += 1
+                            inside = not inside
                         for s in range(ns):
                             cur_f[s] = st_f[p, s]
                             cur_fp[s] = st_fp[p, s]
-                        fcur = 0.0
-                        for s in range(ns):
-                            fcur += cur_f[s]
+                        fcur = fe
                         tcur = e_t
                         continue
                     # split at a centre, which is classified by its value: where F is
@@ -373,7 +450,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     zm = z0 + km * h
                     if sp + 3 > st_kind.shape[0]:
                         # cannot happen for K < 2^70; keep the kernel total anyway
-                        return -1, nev
+                        return -1, nev, nx
                     # right part keeps slot p (its right-end data are already there)
                     st_k0[p] = km + 1
                     fm, ne1 = _eval_set(seg, hprim, sarr, ns, px, py, zm, m, inv_s2, norm, scratch,
@@ -387,8 +464,16 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     st_k0[p + 2] = q0
                     st_k1[p + 2] = km - 1
                     sp = p + 3
+                tlast = tb
+            if spans and inside:
+                # the rest of the cluster lies above the grid: leave at its top
+                if nx >= xcap:
+                    return -1, nev, nx
+                cz[nx] = min(tlast, zhi)
+                nx += 1
+                inside = False
         a = b
-    return nrun, nev
+    return nrun, nev, nx
 
 
 @kernel
@@ -493,7 +578,7 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
 @parallel_kernel
 def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                   x0, y0, pxs, pys, z0, h, K, n, sigma, norm, kmax, strict, cut_support, max_list,
-                  cap, ray_nrun, run_k0, run_k1, stats):
+                  cap, ray_nrun, run_k0, run_k1, stats, spans, span_tol, xcap, ray_nx, cross_z):
     """Trace every ray of the given buckets in parallel.
 
     Parameters
@@ -525,6 +610,14 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
         Runs of all the bucket's rays, ray after ray.
     stats : (nb, 2) int64, out
         [status, primitive evaluations] per bucket.
+    spans : bool
+        Interval method: also locate every crossing to ``span_tol`` (mm).
+    xcap : int
+        Crossing capacity per bucket.
+    ray_nx : (nb, B*B) int64, out
+        Crossings per ray.
+    cross_z : (nb, xcap) float64, out
+        Crossing heights (mm) of all the bucket's rays, ray after ray.
     """
     nb = buckets.shape[0]
     for q in prange(nb):
@@ -553,6 +646,7 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
         cf = np.empty(nl)
         cfp = np.empty(nl)
         used = 0
+        xused = 0
         nev_tot = 0
         status = OK
         for ly in range(B):
@@ -561,6 +655,7 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                 i = bx * B + lx
                 lr = ly * B + lx
                 ray_nrun[q, lr] = 0
+                ray_nx[q, lr] = 0
                 if i >= W or j >= H or i1 == i0 or status != OK:
                     continue
                 px = x0 + i * pxs
@@ -568,11 +663,13 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                 rk0 = run_k0[q, used:]
                 rk1 = run_k1[q, used:]
                 room = cap - used
+                nx = 0
                 if method == 0:
-                    nr, ne = trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
-                                                kmax, strict, cut_support, scratch, hprim, hrec, order, bps, sarr,
-                                                cur_f, cur_fp, st_f, st_fp, st_kind, st_t, st_k0,
-                                                st_k1, ct, cf, cfp, rk0, rk1, room)
+                    nr, ne, nx = trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
+                                                    kmax, strict, cut_support, scratch, hprim, hrec, order, bps,
+                                                    sarr, cur_f, cur_fp, st_f, st_fp, st_kind, st_t, st_k0,
+                                                    st_k1, ct, cf, cfp, rk0, rk1, room, spans, span_tol,
+                                                    cross_z[q, xused:], xcap - xused)
                 elif method == 1:
                     nr, ne = trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, z0, h, K,
                                                 n // 2, 1.0 / (sigma * sigma), norm, scratch,
@@ -586,5 +683,7 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                     continue
                 ray_nrun[q, lr] = nr
                 used += nr
+                ray_nx[q, lr] = nx
+                xused += nx
         stats[q, 0] = status
         stats[q, 1] = nev_tot

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import importlib
 
-_MODULES = ["lattice", "info", "slice"]
+_MODULES = ["lattice", "info", "slice", "render", "validate", "bench"]
 
 
 def _load():
