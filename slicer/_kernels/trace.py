@@ -70,10 +70,12 @@ def _emit(k0, k1, inside, rk0, rk1, nrun, cap):
 
 
 @kernel
-def _eval_set(seg, hprim, sarr, ns, px, py, z, m, inv_s2, norm, scratch, fo, fpo, ct, cf, cfp):
+def _eval_set(seg, hprim, hrec, sarr, ns, px, py, z, m, inv_s2, norm, scratch, fo, fpo, ct, cf, cfp):
     """f and df/dz of the ns primitives sarr[:ns] at (px, py, z); returns the
     sum and the number of evaluations done. Each hit caches its last value
-    (ct, cf, cfp), so a breakpoint shared by two pieces is evaluated once."""
+    (ct, cf, cfp), so a breakpoint shared by two pieces is evaluated once;
+    at its own support entry or exit a primitive is 0 with slope 0 (the
+    kernel vanishes to order n/2 there), so it is not evaluated."""
     tot = 0.0
     nev = 0
     for s in range(ns):
@@ -81,6 +83,9 @@ def _eval_set(seg, hprim, sarr, ns, px, py, z, m, inv_s2, norm, scratch, fo, fpo
         if ct[r] == z:
             f = cf[r]
             gz = cfp[r]
+        elif hrec[r, H_TIN] == z or hrec[r, H_TOUT] == z:
+            f = 0.0
+            gz = 0.0
         else:
             f, gx, gy, gz = segment_eval(seg, hprim[r], px, py, z, m, inv_s2, norm, True, scratch)
             ct[r] = z
@@ -323,9 +328,9 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                 if ns == 0 or fmax < 1.0 - 1e-10 * (1.0 + fmax):
                     # the primitives' bounds on the whole ray already exclude 1
                     continue
-                fcur, ne1 = _eval_set(seg, hprim, sarr, ns, px, py, ta, m, inv_s2, norm, scratch,
+                fcur, ne1 = _eval_set(seg, hprim, hrec, sarr, ns, px, py, ta, m, inv_s2, norm, scratch,
                                       cur_f, cur_fp, ct, cf, cfp)
-                _, ne2 = _eval_set(seg, hprim, sarr, ns, px, py, tb, m, inv_s2, norm, scratch,
+                _, ne2 = _eval_set(seg, hprim, hrec, sarr, ns, px, py, tb, m, inv_s2, norm, scratch,
                                     st_f[0], st_fp[0], ct, cf, cfp)
                 nev += ne1 + ne2
                 if spans and (fcur >= 1.0) != inside:
@@ -387,7 +392,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                                     else:
                                         ts = tr - 0.5 * span_tol
                                     ts = min(max(ts, tcur + 0.125 * w), e_t - 0.125 * w)
-                                fm, ne1 = _eval_set(seg, hprim, sarr, ns, px, py, ts, m, inv_s2, norm,
+                                fm, ne1 = _eval_set(seg, hprim, hrec, sarr, ns, px, py, ts, m, inv_s2, norm,
                                                     scratch, st_f[p + 1], st_fp[p + 1], ct, cf, cfp)
                                 nev += ne1
                                 st_kind[p + 1] = 0
@@ -453,7 +458,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                         return -1, nev, nx
                     # right part keeps slot p (its right-end data are already there)
                     st_k0[p] = km + 1
-                    fm, ne1 = _eval_set(seg, hprim, sarr, ns, px, py, zm, m, inv_s2, norm, scratch,
+                    fm, ne1 = _eval_set(seg, hprim, hrec, sarr, ns, px, py, zm, m, inv_s2, norm, scratch,
                                         st_f[p + 2], st_fp[p + 2], ct, cf, cfp)
                     nev += ne1
                     st_kind[p + 1] = 1
