@@ -331,6 +331,9 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
             out.append((pending[q], ray_nrun[q], run_k0[q, :used], run_k1[q, :used], int(stats[q, 1]),
                         ray_nx[q], cross_z[q, :xused].copy()))
         pending = np.array(retry, dtype=np.int64)
+        if retry and cap > B * B * (grid.layers + 2) and (not spans or xcap > B * B * (128 * grid.layers + 64)):
+            # more runs than a bucket can hold: the kernel's stack, not the buffer, overflowed
+            raise RuntimeError("internal error: the tracer's stack overflowed")  # pragma: no cover
         cap *= 4
         if spans:
             xcap *= 4

@@ -232,3 +232,29 @@ def test_png_stack_layout_matches_field_at_voxel_centres(tmp_path):
     bad = ((vol == 255) != (f >= 1)) & (np.abs(f - 1) > TOL)
     assert not bad.any()
     assert (vol == 255).sum() > 100
+
+
+@pytest.mark.parametrize("spans", [False, True])
+def test_long_strut_with_flat_field_along_the_ray_is_exact(spans):
+    """Rays parallel to a long strut's axis inside it see F nearly constant: the
+    Hermite estimate of the crossing at the end cap is poor and lands near the
+    far end of the piece again and again. Split placement must still terminate
+    within the kernel's stack (it used to overflow and retry forever)."""
+    skel = _scene([[0, 0, 0], [0, 0, 40]], [[0, 1]], [[0.5, 0.5]])
+    grid = make_grid(skel.support_bounds(), 0.05, layer_height=0.05)
+    res, _ = assert_exact(skel, grid, "interval", bucket=8, spans=spans)
+    assert res.n_runs > 250
+
+
+def test_runs_stay_inside_a_grid_that_crops_the_model():
+    """Explicit bounds cutting through the model: runs never reach past the
+    last layer, and centres beyond the grid are not evaluated."""
+    skel = _scene([[0, 0, 0], [0, 0, 1]], [[0, 1]], [[0.5, 0.5]])
+    one = make_grid(skel.support_bounds(), 0.1, layer_height=0.1, bounds=(-0.05, -0.05, 0.45, 0.05, 0.05, 0.55))
+    assert (one.width, one.height, one.layers) == (1, 1, 1)
+    res = trace(skel, one)
+    assert res.n_runs == 1 and (res.k0[0], res.k1[0]) == (0, 1)
+    grid = make_grid(skel.support_bounds(), 0.05, layer_height=0.05, bounds=(-1, -1, 0.2, 1, 1, 0.6))
+    for method in sorted(METHODS):
+        res, _ = assert_exact(skel, grid, method)
+        assert res.k1.max() <= grid.layers and res.k0.min() >= 0

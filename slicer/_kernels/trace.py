@@ -36,14 +36,24 @@ OK = 0
 RUNS_FULL = 1
 
 MAX_STACK = 256
+# Split placement at a Hermite estimate of the crossing can shrink a piece by
+# as little as one centre (or w/8) per level when the estimate is poor; past
+# these stack depths the splits fall back to the middle, which bounds the
+# depth by DEEP_CENTRES + 2 log2(K) + 2 and DEEP_SPANS + log2(h / span_tol) + 1.
+DEEP_CENTRES = 96
+DEEP_SPANS = 150
 
 
 @kernel
 def _first_centre(t, z0, h, K):
     """Smallest k with z0 + k h >= t (clamped to [0, K])."""
-    k = int(math.ceil((t - z0) / h))
-    if k < 0:
+    u = math.ceil((t - z0) / h)
+    if not u > 0.0:
         k = 0
+    elif u >= K:
+        k = K
+    else:
+        k = int(u)
     while k > 0 and z0 + (k - 1) * h >= t:
         k -= 1
     while k < K and z0 + k * h < t:
@@ -385,7 +395,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                                     de += st_fp[p, s]
                                 w = e_t - tcur
                                 ts = tcur + 0.5 * w
-                                if mono != 0 and (fcur - 1.0) * (fe - 1.0) < 0.0:
+                                if mono != 0 and (fcur - 1.0) * (fe - 1.0) < 0.0 and sp < DEEP_SPANS:
                                     tr = _hermite_root(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
                                     if tr - tcur <= e_t - tr:
                                         ts = tr + 0.5 * span_tol
@@ -440,7 +450,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     # monotone and brackets 1 (one crossing), at the centre nearest the
                     # Hermite estimate of the crossing; elsewhere at the middle centre
                     km = (q0 + q1) // 2
-                    if mono != 0 and q1 > q0:
+                    if mono != 0 and q1 > q0 and sp < DEEP_CENTRES:
                         fe = 0.0
                         dcur = 0.0
                         de = 0.0
