@@ -170,3 +170,15 @@ def test_coverage_without_spans_is_refused():
     res = slice_skeleton(CASES["vertical_on_column"][0], 0.2)
     with pytest.raises(GridError, match="spans=True"):
         next(res.iter_coverage())
+
+
+def test_a_column_lying_in_the_surface_does_not_explode_into_noise_spans():
+    """A pixel column exactly on a constant-radius strut's surface sees F = 1 up
+    to rounding along the whole strut: spans must not be refined down to the
+    noise (it used to give millions of spans at a small tolerance)."""
+    s = Skeleton([[0, 0, 0], [0, 0, 3], [0, 0, 3], [0, 0, 5]], [[0, 1], [2, 3]], [[0.5, 0.5], [0.5, 0.5]])
+    g = make_grid(s.support_bounds(), 0.1)
+    r = trace(s, g, spans=True, span_tol=g.layer_height / 65536)
+    per_pix = np.bincount(r.span_pix)
+    assert per_pix.max() <= g.layers + 2
+    assert r.stats["evaluations"] < 2_000_000

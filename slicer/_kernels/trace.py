@@ -41,6 +41,9 @@ MAX_STACK = 256
 # these stack depths the splits fall back to the middle, which bounds the
 # depth by DEEP_CENTRES + 2 log2(K) + 2 and DEEP_SPANS + log2(h / span_tol) + 1.
 DEEP_CENTRES = 96
+# |F - 1| below this at both ends of a piece is rounding noise: spans are not
+# refined there (a pixel column lying in the surface of a constant-radius strut)
+SURFACE_BAND = 1e-9
 DEEP_SPANS = 150
 
 
@@ -381,7 +384,13 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             done = True
                         elif q1 < q0:
                             # spans: no centre left; refine the crossing(s) to span_tol
-                            if e_t - tcur <= span_tol or e_t <= zlo or tcur >= zhi:
+                            fe = 0.0
+                            for s in range(ns):
+                                fe += st_f[p, s]
+                            if (e_t - tcur <= span_tol or e_t <= zlo or tcur >= zhi
+                                    or (abs(fcur - 1.0) <= SURFACE_BAND and abs(fe - 1.0) <= SURFACE_BAND)):
+                                # narrow enough, outside the grid, or F within rounding of 1 at
+                                # both ends (a column lying in the surface): no more splits
                                 done = True
                             else:
                                 if sp + 2 > st_kind.shape[0]:
