@@ -8,29 +8,55 @@ stack), then ``close`` (publishes the output atomically) or ``abort``
 from __future__ import annotations
 
 from .base import StackWriter, atomic_dir
+from .cli import CliAsciiWriter, CliShortWriter, CliWriter
+from .contour_base import ContourWriter
+from .goo import GooWriter
 from .png_stack import PngStackWriter
+from .sl1 import Sl1sWriter, Sl1Writer
+from .svg import SvgWriter
+from .threemf_slices import ThreeMFSliceWriter
+from .zip_stack import ZipStackWriter
 
 #: format name -> writer class
 WRITERS: dict[str, type[StackWriter]] = {
     "png": PngStackWriter,
+    # image formats (StackWriter: write_layer(k, image (H, W) uint8))
+    "zip": ZipStackWriter,
+    "sl1": Sl1Writer,
+    "sl1s": Sl1sWriter,
+    "goo": GooWriter,
+    # contour formats (ContourWriter: write_layer(k, z, polygons))
+    "cli": CliWriter,
+    "cli-ascii": CliAsciiWriter,
+    "cli-short": CliShortWriter,
+    "3mf": ThreeMFSliceWriter,
+    "svg": SvgWriter,
 }
 
 #: output suffix -> format name (a path without a known suffix is a PNG folder)
-SUFFIXES: dict[str, str] = {}
+SUFFIXES: dict[str, str] = {".zip": "zip", ".sl1": "sl1", ".sl1s": "sl1s", ".goo": "goo",
+                            ".cli": "cli", ".3mf": "3mf", ".svg": "svg"}
 
 
-def writer_for(name: str | None, path) -> type[StackWriter]:
-    """The writer class for a format name, or inferred from ``path``'s suffix."""
+def format_for(name: str | None, path, default: str = "png") -> str:
+    """The format name: ``name`` if given, else from ``path``'s suffix, else ``default``."""
     from pathlib import Path
 
+    if name is not None:
+        return str(name).lower()
+    return SUFFIXES.get(Path(path).suffix.lower(), default)
+
+
+def writer_for(name: str | None, path, default: str = "png") -> type[StackWriter]:
+    """The writer class for a format name, or inferred from ``path``'s suffix
+    (``default`` when the suffix is not a known one)."""
     from slicer.errors import OutputError
 
-    if name is None:
-        name = SUFFIXES.get(Path(path).suffix.lower(), "png")
+    name = format_for(name, path, default)
     try:
         return WRITERS[name]
     except KeyError:
         raise OutputError(f"unknown output format {name!r}; choose one of {sorted(WRITERS)}") from None
 
 
-__all__ = ["WRITERS", "SUFFIXES", "writer_for", "StackWriter", "atomic_dir"]
+__all__ = ["WRITERS", "SUFFIXES", "writer_for", "format_for", "StackWriter", "ContourWriter", "atomic_dir"]

@@ -33,13 +33,28 @@ from .base import StackWriter, atomic_dir
 LAYER_NAME = "layer_{:05d}.png"
 
 
+def slices_doc(grid, files: list[str], meta: dict, settings=None) -> dict:
+    """The ``slices.json`` document of a stack (also the zip format's)."""
+    doc = {
+        **grid.to_dict(),
+        "files": files,
+        "units": "mm",
+        "axes": {"columns": "+x", "rows": "-y", "layers": "+z"},
+        "inside_value": 255,
+        **meta,
+    }
+    if settings is not None:
+        doc["print"] = settings.to_dict()
+    return doc
+
+
 class PngStackWriter(StackWriter):
     """Folder of ``layer_00000.png`` ... plus ``slices.json``, published atomically."""
 
     name = "png"
 
-    def __init__(self, path, grid, meta=None, force=False):
-        super().__init__(path, grid, meta, force)
+    def __init__(self, path, grid, meta=None, force=False, settings=None):
+        super().__init__(path, grid, meta, force, settings)
         self._dir = atomic_dir(self.path)
         self._files: list[str] = []
 
@@ -60,14 +75,7 @@ class PngStackWriter(StackWriter):
         if len(self._files) != g.layers:
             self.abort()
             raise OutputError(f"{self.path}: {len(self._files)} of {g.layers} layers were written")
-        doc = {
-            **g.to_dict(),
-            "files": self._files,
-            "units": "mm",
-            "axes": {"columns": "+x", "rows": "-y", "layers": "+z"},
-            "inside_value": 255,
-            **self.meta,
-        }
+        doc = slices_doc(g, self._files, self.meta, self.settings)
         try:
             with open(self._dir.tmp / "slices.json", "w") as fh:
                 json.dump(doc, fh, indent=1)

@@ -107,7 +107,8 @@ _MAX_SHOWN = 60
 
 # ----------------------------------------------------------------------------- public API
 def load_scene(path, radius: float | None = None) -> Skeleton:
-    """Read a scene file: a ``.json`` scene (version 1) or ``.obj`` polylines.
+    """Read a scene file: a ``.json`` scene (version 1), ``.obj`` polylines or a
+    ``.3mf`` Beam Lattice (see :mod:`slicer.scene_3mf`).
 
     Parameters
     ----------
@@ -145,11 +146,15 @@ def load_scene(path, radius: float | None = None) -> Skeleton:
         src = os.fsdecode(src)
     if radius is not None:
         _check_radius_argument(radius)
+    if Path(src).suffix.lower() == ".3mf":  # 3MF Beam Lattice (read only)
+        from .scene_3mf import load_3mf
+
+        return load_3mf(src, radius)
     fmt = SUFFIXES.get(Path(src).suffix.lower())
     if fmt is None:
         raise SceneError(
             f"unknown scene file type {Path(src).suffix or '(no suffix)'!r}; "
-            f"expected a .json scene or .obj polylines", src)
+            f"expected a .json scene, .obj polylines or a .3mf beam lattice", src)
     text = _read_text(src)
     if fmt == "json":
         return _skeleton_from_json(_parse_json(text, src), src, radius)

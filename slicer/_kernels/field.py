@@ -34,20 +34,36 @@ NCOL = 10
 
 
 @kernel
-def support_interval(seg, i, px, py, pz, inv_s2):
-    """Arc-length interval [ta, tb] of segment ``i`` whose support ball holds p.
+def _support_local(seg, i, px, py, pz, inv_s2):
+    """Support interval of segment ``i`` at p, in arc lengths measured from a
+    local origin ``to``: the foot of p on the axis, clamped to [0, L]
+    (math.md §2.2).
 
-    Solves ``P(t) = tau(t)^2 - |p - q(t)|^2 / sigma^2 > 0`` (math.md §2.2) in a
-    cancellation-free form: the discriminant is written as
-    ``(tau_foot^2 + c2 * perp^2) / sigma^2`` with ``perp`` the distance to the
-    axis line, so points far along long struts keep full accuracy.
+    With ``t' = t - to`` and ``e = (p - a).u - to`` the support polynomial is
+    ``P = c2 t'^2 + 2 (tau_o delta + e / sigma^2) t' + tau_o^2 - (perp^2 + e^2) / sigma^2``.
+    When the foot lies on the segment, e = 0 and the coefficients and roots
+    are of the size of the radius: the interval has full relative accuracy
+    however far along a long strut p lies (arc lengths from ``a`` carry
+    rounding errors ~ eps (p - a).u, i.e. ~ eps L / tau relative to the
+    radius). When the foot lies beyond an end, the origin is that end, where
+    the support is. The discriminant ``(tau_foot^2 + c2 perp^2) / sigma^2``,
+    the same in every frame, has no cancellation.
 
     Returns
     -------
-    ta, tb : float
-        Clipped to [0, L]; ``tb <= ta`` means empty.
+    to : float
+        The origin: 0, L or the foot's arc length.
+    e : float
+        (p - a).u - to (0 when the foot is the origin).
+    lo, hi : float
+        The clipped interval in t' (``lo = -to`` is the clip at t = 0,
+        ``hi = L - to`` the clip at t = L); ``hi <= lo`` means empty.
     root_a, root_b : bool
-        Whether ta (tb) is a root of P rather than a clip at 0 (L).
+        Whether lo (hi) is a root of P rather than a clip.
+    qx, qy, qz, perp2 : float
+        The component of p - a perpendicular to the axis, its square norm.
+    tau_o : float
+        Radius at the origin.
     """
     wx = px - seg[i, AX]
     wy = py - seg[i, AY]
@@ -56,38 +72,47 @@ def support_interval(seg, i, px, py, pz, inv_s2):
     uy = seg[i, UY]
     uz = seg[i, UZ]
     L = seg[i, LEN]
-    tau0 = seg[i, TAU0]
     d = seg[i, DELTA]
+    tau0 = seg[i, TAU0]
     wu = wx * ux + wy * uy + wz * uz
     qx = wx - wu * ux
     qy = wy - wu * uy
     qz = wz - wu * uz
     perp2 = qx * qx + qy * qy + qz * qz
-    ww = wu * wu + perp2
-    c2 = d * d - inv_s2
-    h = tau0 * d + wu * inv_s2          # c1 / 2
-    c0 = tau0 * tau0 - ww * inv_s2
+    if wu <= 0.0:
+        to = 0.0
+        e = wu
+    elif wu >= L:
+        to = L
+        e = wu - L
+    else:
+        to = wu
+        e = 0.0
+    tau_o = tau0 + d * to
     tfoot = tau0 + d * wu
-    disc = (tfoot * tfoot + c2 * perp2) * inv_s2   # (c1^2 - 4 c2 c0) / 4
-    lo = 0.0
-    hi = L
+    c2 = d * d - inv_s2
+    h = tau_o * d + e * inv_s2                       # c1 / 2
+    c0 = tau_o * tau_o - (perp2 + e * e) * inv_s2
+    disc = (tfoot * tfoot + c2 * perp2) * inv_s2     # h^2 - c2 c0
+    lo = -to
+    hi = L - to
     root_a = False
     root_b = False
     if c2 < 0.0:
         if disc <= 0.0:
-            return 0.0, -1.0, False, False
+            return to, e, 0.0, -1.0, False, False, qx, qy, qz, perp2, tau_o
         sq = math.sqrt(disc)
         q = -(h + sq) if h >= 0.0 else -(h - sq)
         if q == 0.0:
-            return 0.0, -1.0, False, False
+            return to, e, 0.0, -1.0, False, False, qx, qy, qz, perp2, tau_o
         r1 = q / c2
         r2 = c0 / q
         rlo = min(r1, r2)
         rhi = max(r1, r2)
-        if rlo > 0.0:
+        if rlo > lo:
             lo = rlo
             root_a = True
-        if rhi < L:
+        if rhi < hi:
             hi = rhi
             root_b = True
     elif c2 > 0.0:
@@ -95,28 +120,48 @@ def support_interval(seg, i, px, py, pz, inv_s2):
         if disc > 0.0:
             sq = math.sqrt(disc)
             q = -(h + sq) if h >= 0.0 else -(h - sq)
-            if q != 0.0:
-                rhi = max(q / c2, c0 / q)
-            else:
-                rhi = 0.0
-            if rhi > 0.0:
+            rhi = max(q / c2, c0 / q)
+            if rhi > lo:
                 lo = rhi
                 root_a = True
     else:
-        # P linear: 2 h t + c0 > 0
+        # P linear: 2 h t' + c0 > 0
         if h > 0.0:
             r = -c0 / (2.0 * h)
-            if r > 0.0:
+            if r > lo:
                 lo = r
                 root_a = True
         elif h < 0.0:
             r = -c0 / (2.0 * h)
-            if r < L:
+            if r < hi:
                 hi = r
                 root_b = True
         elif c0 <= 0.0:
-            return 0.0, -1.0, False, False
-    return lo, hi, root_a, root_b
+            return to, e, 0.0, -1.0, False, False, qx, qy, qz, perp2, tau_o
+    return to, e, lo, hi, root_a, root_b, qx, qy, qz, perp2, tau_o
+
+
+@kernel
+def support_interval(seg, i, px, py, pz, inv_s2):
+    """Arc-length interval [ta, tb] of segment ``i`` whose support ball holds p.
+
+    Solves ``P(t) = tau(t)^2 - |p - q(t)|^2 / sigma^2 > 0`` (math.md §2.2);
+    see :func:`_support_local`, which this shifts back to arc lengths from a.
+
+    Returns
+    -------
+    ta, tb : float
+        Clipped to [0, L] (exactly 0 and L at the clips); ``tb <= ta`` means
+        empty.
+    root_a, root_b : bool
+        Whether ta (tb) is a root of P rather than a clip at 0 (L).
+    """
+    to, _, lo, hi, root_a, root_b, _, _, _, _, _ = _support_local(seg, i, px, py, pz, inv_s2)
+    if not hi > lo:
+        return 0.0, -1.0, False, False
+    ta = to + lo if root_a else 0.0
+    tb = to + hi if root_b else seg[i, LEN]
+    return ta, tb, root_a, root_b
 
 
 @kernel
@@ -194,24 +239,36 @@ def segment_eval(seg, i, px, py, pz, m, inv_s2, norm, grad, scratch):
     f, gx, gy, gz : float
         Field and gradient (gradient zero when ``grad`` is false).
     """
-    ta, tb, root_a, root_b = support_interval(seg, i, px, py, pz, inv_s2)
-    if not tb > ta:
+    to, e, lo, hi, root_a, root_b, qx, qy, qz, perp2, tau_o = _support_local(seg, i, px, py, pz, inv_s2)
+    if not hi > lo:
         return 0.0, 0.0, 0.0, 0.0
     ux = seg[i, UX]
     uy = seg[i, UY]
     uz = seg[i, UZ]
-    tau0 = seg[i, TAU0]
     d = seg[i, DELTA]
-    taua = tau0 + d * ta
-    wx = px - seg[i, AX] - ta * ux
-    wy = py - seg[i, AY] - ta * uy
-    wz = pz - seg[i, AZ] - ta * uz
-    ww = wx * wx + wy * wy + wz * wz
-    wu = wx * ux + wy * uy + wz * uz
+    # w = p - q(ta) = perp + (e - lo) u, from the local frame: its component
+    # along u is a difference of small numbers, not of two arc lengths from a
+    taua = tau_o + d * lo if root_a else seg[i, TAU0]
+    wu = e - lo
+    wx = qx + wu * ux
+    wy = qy + wu * uy
+    wz = qz + wu * uz
+    ww = perp2 + wu * wu
     p0 = 1.0 - ww * inv_s2 / (taua * taua)
     p1 = 2.0 * (d + wu * inv_s2 / taua)
     p2 = d * d - inv_s2
-    l = (tb - ta) / taua
+    # support length: local where both ends are roots, exactly L where both are
+    # clips, else from the exact clip offset (-to or L - to: 0 or L when the
+    # origin is an end; L - foot is exact near the far end by Sterbenz)
+    if root_a and root_b:
+        span = hi - lo
+    elif root_a:
+        span = (seg[i, LEN] - to) - lo
+    elif root_b:
+        span = hi + to
+    else:
+        span = seg[i, LEN]
+    l = span / taua
     Y = l / (1.0 + d * l)
     if root_a:
         p0 = 0.0          # R(0) = 0 exactly at a support root

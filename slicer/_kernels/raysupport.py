@@ -13,8 +13,8 @@ from .._jit import kernel
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 
 # layout of the per-hit record returned in ``out`` by ray_support
-H_TIN, H_TOUT, H_TSTAR, H_LIP, H_S0, H_S1, H_TP0, H_TP1, H_FMAX = range(9)
-NHIT = 9
+H_TIN, H_TOUT, H_TSTAR, H_LIP, H_S0, H_S1, H_TP0, H_TP1, H_FMAX, H_REACH = range(10)
+NHIT = 10
 
 
 @kernel
@@ -85,11 +85,13 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, out):
         Kernel degree; ``sigma``, ``norm``: support factor and normalisation.
     kmax : float
         max |k'| (:func:`kprime_max`).
-    out : (9,) float64
+    out : (NHIT,) float64
         Filled on a hit: t_in, t_out (padded outward), t* (cut), Lipschitz
         factor C (so that |f'| <= C * max(|D+|, |D-|) on a piece), skeleton
-        range s0, s1, the projection t_proj(s) = tp0 + s tp1, and fmax, an
-        upper bound of the field anywhere on the ray.
+        range s0, s1, the projection t_proj(s) = tp0 + s tp1, fmax, an
+        upper bound of the field anywhere on the ray, and the reach
+        sigma * tau(s1): no q(s) with |t_proj(s) - t| >= reach is in the
+        support of r(t).
 
     Returns
     -------
@@ -216,6 +218,9 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, out):
     out[H_S1] = s1
     out[H_TP0] = wd
     out[H_TP1] = Dd
+    # tau grows with s (table orientation), so tau(s1) is the largest radius on S;
+    # padded far beyond the rounding of the t_proj(s) = t solves in lipschitz()
+    out[H_REACH] = sigma * (tau0 + s1 * dtau) * (1.0 + 1e-9) + 1e-9 * (abs(wd) + abs(Dd))
     return True
 
 
@@ -223,9 +228,16 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, out):
 def lipschitz(rec, ta, tb):
     """Bound on |f'(t)| for t in [ta, tb] from a hit record (math.md §4.2).
 
+    D+ (D-) is the part of the skeleton range that lies ahead of (behind) some
+    point of the piece. Only skeleton points whose support reaches the piece
+    count: q(s) acts on r(t) only if |t_proj(s) - t| < sigma tau(s) <= reach,
+    so D+ is also cut at t_proj < tb + reach and D- at t_proj > ta - reach.
+    Without that cut a ray running along a long strut's axis would charge the
+    whole strut to every piece (bound ~ L instead of ~ sigma tau).
+
     Parameters
     ----------
-    rec : (8,) float64
+    rec : (NHIT,) float64
         Record filled by :func:`ray_support`.
     ta, tb : float
         Piece of the ray.
@@ -234,20 +246,25 @@ def lipschitz(rec, ta, tb):
     s1 = rec[H_S1]
     tp0 = rec[H_TP0]
     tp1 = rec[H_TP1]
-    # |D+| = |{s in S : tp(s) > ta}|, |D-| = |{s in S : tp(s) < tb}|
+    R = rec[H_REACH]
+    # |D+| = |{s in S : ta < tp(s) < tb + R}|, |D-| = |{s in S : ta - R < tp(s) < tb}|
     if tp1 > 0.0:
         sa = (ta - tp0) / tp1
         sb = (tb - tp0) / tp1
-        dp = s1 - max(s0, sa)
-        dm = min(s1, sb) - s0
+        sa_r = (ta - R - tp0) / tp1
+        sb_r = (tb + R - tp0) / tp1
+        dp = min(s1, sb_r) - max(s0, sa)
+        dm = min(s1, sb) - max(s0, sa_r)
     elif tp1 < 0.0:
         sa = (ta - tp0) / tp1
         sb = (tb - tp0) / tp1
-        dp = min(s1, sa) - s0
-        dm = s1 - max(s0, sb)
+        sa_r = (ta - R - tp0) / tp1
+        sb_r = (tb + R - tp0) / tp1
+        dp = min(s1, sa) - max(s0, sb_r)
+        dm = min(s1, sa_r) - max(s0, sb)
     else:
-        dp = (s1 - s0) if tp0 > ta else 0.0
-        dm = (s1 - s0) if tp0 < tb else 0.0
+        dp = (s1 - s0) if (tp0 > ta and tp0 < tb + R) else 0.0
+        dm = (s1 - s0) if (tp0 < tb and tp0 > ta - R) else 0.0
     w = max(dp, dm)
     if w < 0.0:
         w = 0.0

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import importlib
 
-_MODULES = ["lattice", "info", "slice", "render", "validate", "bench"]
+_MODULES = ["lattice", "info", "slice", "printers", "render", "validate", "bench"]
 
 
 def _load():

@@ -1,0 +1,471 @@
+"""Built-in resin printer profiles and model placement on the build plate.
+
+Plate coordinates
+-----------------
+``X`` runs along the display's ``pixels[0]`` axis over ``[0, display[0]]`` mm,
+``Y`` along ``pixels[1]`` over ``[0, display[1]]`` mm, seen from above, with
+the build plate at ``Z = 0`` (PrusaSlicer's ``bed_shape``). A *plate image*
+has the grid conventions of :class:`slicer.grid.SliceGrid`: ``pixels[0]``
+columns toward +X, ``pixels[1]`` rows toward -Y, so pixel ``(row j, column
+i)`` has its centre at ``X = (i + 1/2) px``, ``Y = display[1] - (j + 1/2) py``.
+
+Native images
+-------------
+Printer files store what the LCD shows. :meth:`Printer.to_native` turns a
+plate image into that layout with PrusaSlicer's raster transform
+(``SL1Archive::create_raster`` / ``RasterBase::Trafo``; formats.md §1.2):
+a portrait display swaps X and Y, ``mirror_x' = portrait XOR mirror_x``,
+``mirror_y' = not mirror_y``, raster row 0 at the top. For the SL1S
+(portrait, mirror_x) that gives column = Y/py and row = 2560 - X/px, the
+measured PrusaSlicer output.
+
+Profile values (resolution, display size, orientation, mirroring, height)
+come from PrusaSlicer's ``PrusaResearchSLA.ini`` (Prusa) and UVtools'
+``PrusaSlicer/printer/*.ini`` (Elegoo, Anycubic). Exposure times and bottom
+layers are typical starting values for a standard resin at 0.05 mm:
+calibrate them for your resin (``--exposure``, ``--bottom-exposure``,
+``--bottom-layers``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from slicer.errors import GridError
+
+
+@dataclass(frozen=True)
+class Printer:
+    """One resin printer.
+
+    Attributes
+    ----------
+    name : str
+        Key used by ``--printer``.
+    label : str
+        Human-readable name (PrusaSlicer ``printer_settings_id`` style).
+    vendor : str
+    pixels : (2,) int
+        ``display_pixels_x``, ``display_pixels_y``.
+    display : (2,) float, mm
+        ``display_width``, ``display_height``; pixel pitch is
+        ``display / pixels`` per axis (non-square allowed).
+    orientation : {"landscape", "portrait"}
+    mirror_x, mirror_y : bool
+        ``display_mirror_x``, ``display_mirror_y``.
+    max_height : float, mm
+        Highest printable Z.
+    layer_height : float, mm
+        Default layer height.
+    exposure, bottom_exposure : float, s
+        Default normal and bottom (first layers) exposure.
+    bottom_layers : int
+        Default number of bottom layers (Prusa: faded layers).
+    format : str
+        Default output format name.
+    model : str
+        Machine code written into the file (Prusa ``printerModel``, GOO
+        ``printer_name``).
+    thumbnails : tuple of (w, h)
+        Preview sizes the format stores.
+    lift : (4,) float
+        Lift distance (mm), lift speed (mm/min), retract distance (mm),
+        retract speed (mm/min), for formats that store motion.
+    layer_overhead : float, s
+        Time per layer besides exposure (tilt or lift), for print-time
+        estimates.
+    """
+
+    name: str
+    label: str
+    vendor: str
+    pixels: tuple[int, int]
+    display: tuple[float, float]
+    orientation: str
+    mirror_x: bool
+    mirror_y: bool
+    max_height: float
+    layer_height: float
+    exposure: float
+    bottom_exposure: float
+    bottom_layers: int
+    format: str
+    model: str
+    thumbnails: tuple[tuple[int, int], ...] = ((400, 400), (800, 480))
+    lift: tuple[float, float, float, float] = (5.0, 65.0, 5.0, 150.0)
+    layer_overhead: float = 8.0
+
+    @property
+    def pixel_size(self) -> tuple[float, float]:
+        """(px, py) mm: pitch along plate X and Y."""
+        return (self.display[0] / self.pixels[0], self.display[1] / self.pixels[1])
+
+    @property
+    def plate_shape(self) -> tuple[int, int]:
+        """(rows, columns) of a plate image."""
+        return (self.pixels[1], self.pixels[0])
+
+    @property
+    def native_shape(self) -> tuple[int, int]:
+        """(rows, columns) of the image stored in the file."""
+        if self.orientation == "portrait":
+            return (self.pixels[0], self.pixels[1])
+        return (self.pixels[1], self.pixels[0])
+
+    def to_native(self, plate: np.ndarray) -> np.ndarray:
+        """The file's image of a plate image (a view; no copy).
+
+        Parameters
+        ----------
+        plate : (pixels[1], pixels[0]) array
+            Columns toward +X, rows toward -Y.
+
+        Returns
+        -------
+        (native_shape) array
+        """
+        if plate.shape != self.plate_shape:
+            raise ValueError(f"{self.name}: plate image must be {self.plate_shape}, got {plate.shape}")
+        if self.orientation == "portrait":
+            img = plate.T                    # row = X index, column = Y index from the top
+            if self.mirror_x:                # mirror_x' false: column = Y / py from Y = 0
+                img = img[:, ::-1]
+            if not self.mirror_y:            # mirror_y' true: row = H - X / px
+                img = img[::-1, :]
+            return img
+        img = plate
+        if self.mirror_x:
+            img = img[:, ::-1]
+        if self.mirror_y:
+            img = img[::-1, :]
+        return img
+
+    def from_native(self, native: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`to_native`: the plate image of a file's image."""
+        img = native
+        if self.orientation == "portrait":
+            if not self.mirror_y:
+                img = img[::-1, :]
+            if self.mirror_x:
+                img = img[:, ::-1]
+            return img.T
+        if self.mirror_y:
+            img = img[::-1, :]
+        if self.mirror_x:
+            img = img[:, ::-1]
+        return img
+
+    def describe(self) -> str:
+        px, py = self.pixel_size
+        return (f"{self.name}: {self.label}, {self.pixels[0]} x {self.pixels[1]} px, "
+                f"{self.display[0]:g} x {self.display[1]:g} x {self.max_height:g} mm, "
+                f"pixel {px * 1000:.4g} x {py * 1000:.4g} um, {self.orientation}"
+                f"{', mirror x' if self.mirror_x else ''}{', mirror y' if self.mirror_y else ''}; "
+                f"default format {self.format}")
+
+
+#: name -> Printer
+PRINTERS: dict[str, Printer] = {p.name: p for p in [
+    Printer("prusa-sl1", "Original Prusa SL1", "Prusa", (2560, 1440), (120.96, 68.04), "portrait",
+            True, False, 150.0, 0.05, 6.0, 35.0, 10, "sl1", "SL1", layer_overhead=11.0),
+    Printer("prusa-sl1s", "Original Prusa SL1S SPEED", "Prusa", (2560, 1620), (128.0, 81.0), "portrait",
+            True, False, 150.0, 0.05, 2.0, 25.0, 10, "sl1s", "SL1S"),
+    Printer("elegoo-mars-4-ultra", "ELEGOO Mars 4 Ultra", "Elegoo", (8520, 4320), (153.36, 77.76),
+            "landscape", True, False, 165.0, 0.05, 2.5, 30.0, 5, "goo", "ELEGOO Mars 4 Ultra",
+            thumbnails=((290, 290), (116, 116)), lift=(5.0, 100.0, 5.0, 150.0), layer_overhead=6.0),
+    Printer("elegoo-saturn-3-ultra", "ELEGOO Saturn 3 Ultra", "Elegoo", (11520, 5120), (218.88, 122.88),
+            "landscape", True, False, 260.0, 0.05, 2.5, 30.0, 5, "goo", "ELEGOO Saturn 3 Ultra",
+            thumbnails=((290, 290), (116, 116)), lift=(7.0, 70.0, 7.0, 210.0), layer_overhead=7.0),
+    Printer("anycubic-photon-mono-x", "Anycubic Photon Mono X", "Anycubic", (3840, 2400), (192.0, 120.0),
+            "landscape", True, False, 245.0, 0.05, 2.0, 40.0, 6, "zip", "Photon Mono X",
+            lift=(8.0, 120.0, 8.0, 120.0)),
+    Printer("anycubic-photon-mono-m5s", "Anycubic Photon Mono M5s", "Anycubic", (11520, 5120),
+            (218.88, 122.88), "landscape", True, False, 200.0, 0.05, 1.5, 25.0, 4, "zip",
+            "Photon Mono M5s", thumbnails=((224, 168),), lift=(8.0, 120.0, 8.0, 120.0)),
+]}
+
+
+def get_printer(name: str) -> Printer:
+    """The profile called ``name`` (case-insensitive), else a GridError listing them."""
+    key = str(name).strip().lower()
+    try:
+        return PRINTERS[key]
+    except KeyError:
+        raise GridError(f"unknown printer {name!r}; choose one of {', '.join(sorted(PRINTERS))}") from None
+
+
+@dataclass(frozen=True)
+class PrintSettings:
+    """What a printer format needs besides the images.
+
+    Attributes
+    ----------
+    printer : Printer or None
+        None: no plate (the model's own grid, as without ``--printer``).
+    layer_height : float, mm
+    exposure, bottom_exposure : float, s
+    bottom_layers : int
+    aa : int
+        XY supersampling factor (1: none).
+    aa_z : bool
+        Sub-layer z coverage.
+    gamma : float
+        Coverage-to-grey exponent (see :mod:`slicer.antialias`).
+    at : (2,) float or None, plate mm
+        Where the model's footprint centre goes (None: plate centre).
+    """
+
+    printer: Printer | None
+    layer_height: float
+    exposure: float = 2.0
+    bottom_exposure: float = 25.0
+    bottom_layers: int = 10
+    aa: int = 1
+    aa_z: bool = False
+    gamma: float = 1.0
+    at: tuple[float, float] | None = None
+
+    @property
+    def antialiased(self) -> bool:
+        return self.aa > 1 or self.aa_z
+
+    def exposure_of(self, k: int) -> float:
+        """Exposure of layer k, s (bottom layers first)."""
+        return self.bottom_exposure if k < self.bottom_layers else self.exposure
+
+    def to_dict(self) -> dict:
+        d = {"layer_height": self.layer_height, "exposure": self.exposure,
+             "bottom_exposure": self.bottom_exposure, "bottom_layers": self.bottom_layers,
+             "aa": self.aa, "aa_z": self.aa_z, "gamma": self.gamma}
+        if self.printer is not None:
+            d["printer"] = self.printer.name
+        if self.at is not None:
+            d["at"] = list(self.at)
+        return d
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where a traced model lands on a printer's plate, in sub-pixel units.
+
+    The model's (sub-)pixel ``(row j, column i)`` and layer ``k`` of the
+    traced grid become plate sub-pixel ``(j + dj, i + di)`` and plate layer
+    ``k - k_first``. With ``aa = n``, plate sub-pixel ``(J, I)`` lies in
+    output pixel ``(J // n, I // n)``, and its centre is at
+    ``X = (I + 1/2) px / n``, ``Y = display_y - (J + 1/2) py / n``: the n x n
+    sub-pixel centres sit symmetrically inside each printer pixel.
+
+    Attributes
+    ----------
+    printer : Printer
+    aa : int
+    di, dj : int
+        Sub-pixel offsets from the traced grid to the plate.
+    k_first : int
+        Traced layer that becomes plate layer 0 (the lowest with an inside
+        voxel centre).
+    layers : int
+        Plate layers written.
+    layer_height : float, mm
+    footprint : (4,) float, plate mm
+        ``X0, Y0, X1, Y1`` of the model's inside pixels on the plate.
+    """
+
+    printer: Printer
+    aa: int
+    di: int
+    dj: int
+    k_first: int
+    layers: int
+    layer_height: float
+    footprint: tuple[float, float, float, float]
+
+    @property
+    def grid(self):
+        """The plate grid (full printer resolution), a SliceGrid."""
+        from slicer.grid import SliceGrid
+
+        px, py = self.printer.pixel_size
+        nx, ny = self.printer.pixels
+        origin = (0.5 * px, self.printer.display[1] - 0.5 * py, 0.5 * self.layer_height)
+        return SliceGrid(origin, (px, py), self.layer_height, nx, ny, self.layers)
+
+
+def place(result, printer: Printer, aa: int = 1, at=None) -> Placement:
+    """Place a traced model on ``printer``'s plate.
+
+    Parameters
+    ----------
+    result : slicer.slicing.SliceResult
+        Traced with pixel pitch ``printer.pixel_size / aa`` (any origin).
+    printer : Printer
+    aa : int
+        Supersampling factor the result was traced with.
+    at : (2,) float, optional, plate mm
+        Target of the centre of the model's footprint (default: plate
+        centre). The model moves by whole sub-pixels, so it lands within
+        half a sub-pixel of the target.
+
+    Raises
+    ------
+    GridError
+        The model does not fit on the plate (naming both sizes), is taller
+        than the printer, or has no inside voxel.
+    """
+    g = result.grid
+    if result.n_runs == 0:
+        raise GridError("the surface is empty: nothing to place on the plate")
+    spx, spy = g.pixel_size
+    ppx, ppy = printer.pixel_size
+    if not (math.isclose(spx * aa, ppx, rel_tol=1e-9) and math.isclose(spy * aa, ppy, rel_tol=1e-9)):
+        raise GridError(f"{printer.name}: traced pitch {spx:g} x {spy:g} mm does not match the printer's "
+                        f"{ppx:g} x {ppy:g} mm / {aa}")
+    j, i = np.divmod(result.pix, g.width)
+    i0, i1, j0, j1 = int(i.min()), int(i.max()), int(j.min()), int(j.max())
+    k_first, k_last = int(result.k0.min()), int(result.k1.max()) - 1
+    W, H = printer.display
+    size_x, size_y = (i1 - i0 + 1) * spx, (j1 - j0 + 1) * spy
+    height = (k_last - k_first + 1) * g.layer_height
+    tx, ty = (0.5 * W, 0.5 * H) if at is None else (float(at[0]), float(at[1]))
+    di = int(round(tx / spx - 0.5 - 0.5 * (i0 + i1)))
+    dj = int(round((H - ty) / spy - 0.5 - 0.5 * (j0 + j1)))
+    nI, nJ = printer.pixels[0] * aa, printer.pixels[1] * aa
+    X0, X1 = (i0 + di) * spx, (i1 + di + 1) * spx
+    Y1, Y0 = H - (j0 + dj) * spy, H - (j1 + dj + 1) * spy
+    where = "" if at is None else f" at X {tx:g} Y {ty:g}"
+    if size_x > W + 1e-9 or size_y > H + 1e-9:
+        raise GridError(f"the model ({size_x:.2f} x {size_y:.2f} mm) does not fit on the {printer.label} "
+                        f"plate ({W:g} x {H:g} mm)")
+    if i0 + di < 0 or i1 + di >= nI or j0 + dj < 0 or j1 + dj >= nJ:
+        raise GridError(f"the model ({size_x:.2f} x {size_y:.2f} mm) placed{where} would cover "
+                        f"X {X0:.2f}..{X1:.2f}, Y {Y0:.2f}..{Y1:.2f} mm, outside the {printer.label} plate "
+                        f"(X 0..{W:g}, Y 0..{H:g} mm)")
+    if height > printer.max_height + 1e-9:
+        raise GridError(f"the model is {height:.2f} mm tall; the {printer.label} prints at most "
+                        f"{printer.max_height:g} mm")
+    return Placement(printer, aa, di, dj, k_first, k_last - k_first + 1, g.layer_height, (X0, Y0, X1, Y1))
+
+
+
+
+@dataclass(frozen=True)
+class JobSpec:
+    """A slicing job's output format, print settings and tracing pitch.
+
+    Attributes
+    ----------
+    fmt : str
+        Output format name.
+    settings : PrintSettings or None
+        None for a plain stack (no printer, no anti-aliasing, no exposure
+        options): output as before.
+    pitch : (2,) float, mm
+        Pixel pitch to trace at (output pitch / aa).
+    layer_height : float, mm
+    spans : bool
+        Trace with real-valued inside spans (``--aa-z``).
+    """
+
+    fmt: str
+    settings: PrintSettings | None
+    pitch: tuple[float, float]
+    layer_height: float
+    spans: bool = False
+
+
+def resolve_job(fmt, out, printer=None, pixel_size=None, pixel_size_y=None, layer_height=None,
+                bounds=None, aa=1, aa_z=False, gamma=1.0, at=None, exposure=None, bottom_exposure=None,
+                bottom_layers=None) -> JobSpec:
+    """Check a job's format and printer options before any work.
+
+    The format is ``fmt``, else the output's suffix, else the printer's
+    default format, else ``png``. ``sl1``/``sl1s`` without ``--printer`` use
+    the Prusa SL1/SL1S profile; ``goo`` needs an explicit printer. With a
+    printer, the pixel pitch and default layer height come from the profile
+    and ``--pixel-size``/``--bounds`` are refused.
+
+    Raises
+    ------
+    GridError
+        Conflicting or invalid options (naming them).
+    OutputError
+        Unknown format.
+    """
+    from slicer.antialias import check_aa
+    from slicer.errors import positive_number
+
+    from . import format_for, writer_for
+
+    prn = get_printer(printer) if printer is not None else None
+    name = format_for(fmt, out, prn.format if prn is not None else "png")
+    cls = writer_for(name, out)
+    if prn is None and cls.default_printer:
+        prn = get_printer(cls.default_printer)
+    if prn is None and cls.needs_printer:
+        raise GridError(f"the {name} format needs --printer NAME; choose one of "
+                        f"{', '.join(sorted(PRINTERS))}")
+    aa, gamma = check_aa(aa, gamma)
+    if prn is not None:
+        if pixel_size is not None or pixel_size_y is not None:
+            raise GridError(f"--pixel-size cannot be combined with a printer ({prn.name} has "
+                            f"{prn.pixel_size[0]:g} x {prn.pixel_size[1]:g} mm pixels)")
+        if bounds is not None:
+            raise GridError("--bounds cannot be combined with a printer: the model is placed on the plate "
+                            "(use --at X Y)")
+        px, py = prn.pixel_size
+        h = positive_number(layer_height, "layer height", GridError) if layer_height is not None \
+            else prn.layer_height
+    else:
+        if at is not None:
+            raise GridError("--at needs --printer (it places the model on a printer's plate)")
+        if pixel_size is None:
+            raise GridError("--pixel-size is required without --printer")
+        px = positive_number(pixel_size, "pixel size", GridError)
+        py = positive_number(pixel_size_y, "pixel size y", GridError) if pixel_size_y is not None else px
+        h = positive_number(layer_height, "layer height", GridError) if layer_height is not None else px
+    options = (exposure, bottom_exposure, bottom_layers)
+    settings = None
+    if prn is not None or aa > 1 or aa_z or any(v is not None for v in options):
+        if bottom_layers is not None and (isinstance(bottom_layers, bool) or int(bottom_layers) != bottom_layers
+                                          or bottom_layers < 0):
+            raise GridError(f"--bottom-layers must be an integer >= 0, got {bottom_layers!r}")
+        settings = PrintSettings(
+            prn, h,
+            exposure=positive_number(exposure, "exposure", GridError) if exposure is not None
+            else (prn.exposure if prn else 2.0),
+            bottom_exposure=positive_number(bottom_exposure, "bottom exposure", GridError)
+            if bottom_exposure is not None else (prn.bottom_exposure if prn else 25.0),
+            bottom_layers=int(bottom_layers) if bottom_layers is not None else (prn.bottom_layers if prn else 10),
+            aa=aa, aa_z=bool(aa_z), gamma=gamma,
+            at=None if at is None else (float(at[0]), float(at[1])))
+        check = getattr(cls, "check_settings", None)
+        if check is not None:
+            check(settings)
+    return JobSpec(name, settings, (px / aa, py / aa), h, bool(aa_z))
+
+
+
+
+def plate_printer(fmt: str, path, grid, settings) -> Printer:
+    """The printer of a printer-format writer, checking the layers fill its plate.
+
+    Raises
+    ------
+    OutputError
+        No printer in ``settings``, or ``grid`` is not the printer's display.
+    """
+    from slicer.errors import OutputError
+
+    if settings is None or settings.printer is None:
+        raise OutputError(f"{path}: the {fmt} format needs a printer profile (--printer)")
+    p = settings.printer
+    if (grid.width, grid.height) != tuple(p.pixels):
+        raise OutputError(f"{path}: the layers are {grid.width} x {grid.height} px, the {p.label} display is "
+                          f"{p.pixels[0]} x {p.pixels[1]} px")
+    return p
+
+
+__all__ = ["Printer", "PRINTERS", "get_printer", "PrintSettings", "Placement", "place", "JobSpec", "resolve_job",
+           "plate_printer"]

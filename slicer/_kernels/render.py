@@ -1,0 +1,694 @@
+"""Transparent rendering kernels: every crossing of every camera ray (EG22 §4).
+
+A camera ray is ``r(t) = o + t d`` with ``|d| = 1`` and ``t >= 0`` (mm). For
+each pixel the kernels
+
+1. intersect the ray with the support of every segment of the pixel's
+   screen-space bucket (:func:`slicer._kernels.raysupport.ray_support`),
+   sort the hits by support entry and group overlapping supports into
+   clusters;
+2. cut each cluster at every member's support entry ``t_in``, exit ``t_out``
+   and homothetic-distance minimum ``t*``;
+3. bound the field on each piece per primitive (:func:`piece_bounds`): a
+   monotone primitive gives its end values, an ambiguous one its directional
+   Lipschitz bound. A piece whose interval excludes the iso-value 1 is
+   settled; a piece on which every primitive is monotone the same way holds
+   at most one crossing; any other piece is bisected until it is narrower
+   than the tolerance (so a crossing pair wider than the tolerance is never
+   missed, not even on a grazing ray);
+4. converge on each bracketed crossing with safeguarded cubic Hermite steps
+   (:func:`hermite_point`, end values and directional derivatives), or pure
+   bisection when asked, until the bracket is narrower than the tolerance;
+5. shade each crossing (outward normal ``-grad F / |grad F|``, Lambert +
+   Blinn-Phong) and composite front to back; the ray stops once the
+   accumulated opacity reaches ``max_opacity``, unless every root is wanted.
+
+A pixel is computed by one thread from its own data only, so the result does
+not depend on the thread count. Kernels never raise; status codes: 0 ok,
+1 root buffer full (the caller retries the bucket with more room).
+
+Camera array ``cam`` (13 float64): ``cam[0:3]`` the ray origin of pixel
+corner (0, 0) (orthographic) or the eye (perspective); ``cam[3:6]`` and
+``cam[6:9]`` the steps ``ex``, ``ey`` of one pixel along a row and down a
+column; ``cam[9:12]`` the unit view direction (orthographic) or the
+direction to pixel corner (0, 0) (perspective); ``cam[12]`` 0 orthographic,
+1 perspective.
+
+Shading array ``shade`` (17 float64): light direction (3, unit, toward the
+light), front colour (3), back colour (3), ambient, diffuse, specular,
+shininess, opacity per crossing, max opacity, opaque flag (0/1), unused.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import prange
+
+from .._jit import kernel, parallel_kernel
+from .field import SCRATCH, segment_eval
+from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz, ray_support
+
+OK = 0
+ROOTS_FULL = 1
+#: pieces waiting on a ray's bisection stack; a split adds one, and splitting
+#: stops below the tolerance, so 2 + log2(piece / tol) entries are ever used
+MAX_STACK = 128
+#: per-bucket counters written to ``stats``
+ST_STATUS, ST_EV_ISOLATE, ST_EV_REFINE, ST_EV_SHADE, ST_ROOTS, ST_CUT, ST_EV_SPLIT = range(7)
+NSTAT = 7
+# layout of ``shade``
+SH_LIGHT, SH_FRONT, SH_BACK, SH_AMB, SH_DIFF, SH_SPEC, SH_SHINE, SH_ALPHA, SH_MAXA, SH_OPAQUE = \
+    0, 3, 6, 9, 10, 11, 12, 13, 14, 15
+NSHADE = 17
+
+
+@kernel
+def pixel_ray(cam, i, j):
+    """Origin and unit direction of the ray through the centre of pixel (i, j).
+
+    Returns
+    -------
+    ox, oy, oz, dx, dy, dz : float
+        Origin (mm) and unit direction.
+    """
+    u = i + 0.5
+    v = j + 0.5
+    if cam[12] == 0.0:
+        ox = cam[0] + u * cam[3] + v * cam[6]
+        oy = cam[1] + u * cam[4] + v * cam[7]
+        oz = cam[2] + u * cam[5] + v * cam[8]
+        return ox, oy, oz, cam[9], cam[10], cam[11]
+    dx = cam[9] + u * cam[3] + v * cam[6]
+    dy = cam[10] + u * cam[4] + v * cam[7]
+    dz = cam[11] + u * cam[5] + v * cam[8]
+    s = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+    return cam[0], cam[1], cam[2], dx * s, dy * s, dz * s
+
+
+@parallel_kernel
+def pixel_rays(cam, W, H, origin, direction):
+    """Fill ``origin`` and ``direction`` ((H, W, 3) float64) with every pixel's ray."""
+    for j in prange(H):
+        for i in range(W):
+            ox, oy, oz, dx, dy, dz = pixel_ray(cam, i, j)
+            origin[j, i, 0] = ox
+            origin[j, i, 1] = oy
+            origin[j, i, 2] = oz
+            direction[j, i, 0] = dx
+            direction[j, i, 1] = dy
+            direction[j, i, 2] = dz
+
+
+@kernel
+def sort_hits(hrec, order, nh):
+    """``order[:nh]`` = the hits ``hrec[:nh]`` sorted by support entry t_in
+    (insertion sort, stable: bucket lists arrive nearly sorted)."""
+    for a in range(nh):
+        order[a] = a
+    for a in range(1, nh):
+        v = order[a]
+        key = hrec[v, H_TIN]
+        b = a - 1
+        while b >= 0 and hrec[order[b], H_TIN] > key:
+            order[b + 1] = order[b]
+            b -= 1
+        order[b + 1] = v
+
+
+@kernel
+def next_cluster(hrec, order, a, nh):
+    """The cluster of overlapping supports that starts at sorted hit ``a``.
+
+    Returns
+    -------
+    b : int
+        Hits ``order[a:b]`` overlap into one span.
+    cs, ce : float
+        The span ``[min t_in, max t_out]``.
+    """
+    cs = hrec[order[a], H_TIN]
+    ce = hrec[order[a], H_TOUT]
+    b = a + 1
+    while b < nh and hrec[order[b], H_TIN] < ce:
+        ce = max(ce, hrec[order[b], H_TOUT])
+        b += 1
+    return b, cs, ce
+
+
+@kernel
+def sort_unique(vals, nv):
+    """Sort ``vals[:nv]`` in place and drop repeated values; returns the new count."""
+    for a in range(1, nv):
+        v = vals[a]
+        b = a - 1
+        while b >= 0 and vals[b] > v:
+            vals[b + 1] = vals[b]
+            b -= 1
+        vals[b + 1] = v
+    if nv == 0:
+        return 0
+    w = 1
+    for a in range(1, nv):
+        if vals[a] != vals[w - 1]:
+            vals[w] = vals[a]
+            w += 1
+    return w
+
+
+@kernel
+def eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2, norm, scratch,
+               fo, fpo, ct, cf, cfp):
+    """Value and directional derivative ``grad f . d`` of the active primitives
+    ``hprim[sarr[:ns]]`` at ``o + t d``.
+
+    A primitive is zero (value and derivative) outside its support interval
+    ``(t_in, t_out)`` of ``hrec`` (padded outward), so it is not evaluated
+    there; each hit caches its last (t, f, f'), so a breakpoint shared by two
+    pieces is evaluated once. Writes ``fo[s]``, ``fpo[s]``; returns (sum of
+    f, evaluations done).
+    """
+    px = ox + t * dx
+    py = oy + t * dy
+    pz = oz + t * dz
+    tot = 0.0
+    nev = 0
+    for s in range(ns):
+        r = sarr[s]
+        if not (t > hrec[r, H_TIN] and t < hrec[r, H_TOUT]):
+            f = 0.0
+            fp = 0.0
+        elif ct[r] == t:
+            f = cf[r]
+            fp = cfp[r]
+        else:
+            f, gx, gy, gz = segment_eval(seg, hprim[r], px, py, pz, m, inv_s2, norm, True, scratch)
+            fp = gx * dx + gy * dy + gz * dz
+            ct[r] = t
+            cf[r] = f
+            cfp[r] = fp
+            nev += 1
+        fo[s] = f
+        fpo[s] = fp
+        tot += f
+    return tot, nev
+
+
+@kernel
+def field_grad_along(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2, norm, scratch):
+    """F, its gradient (1/mm) and ``grad F . d`` at ``o + t d`` over the active
+    primitives (no cache: refinement points are never revisited)."""
+    px = ox + t * dx
+    py = oy + t * dy
+    pz = oz + t * dz
+    F = 0.0
+    Gx = 0.0
+    Gy = 0.0
+    Gz = 0.0
+    for s in range(ns):
+        f, gx, gy, gz = segment_eval(seg, hprim[sarr[s]], px, py, pz, m, inv_s2, norm, True, scratch)
+        F += f
+        Gx += gx
+        Gy += gy
+        Gz += gz
+    return F, Gx, Gy, Gz, Gx * dx + Gy * dy + Gz * dz
+
+
+@kernel
+def piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
+    """Interval ``[lo, hi]`` of the summed field of the active primitives on
+    the ray piece ``[ta, tb]``, and whether the sum is monotone there.
+
+    Works for any ray direction: ``fpa``/``fpb`` are directional derivatives
+    along the ray. Per primitive (math.md §5.1): increasing (``f'(tb) > 0``,
+    ``f'(ta) >= 0``) gives ``[f(ta), f(tb)]``, decreasing the reverse; anything
+    else is ambiguous and bounded with the directional Lipschitz constant K:
+    ``hi = (f(ta) + f(tb) + K (tb - ta)) / 2``, ``lo = min(f(ta), f(tb))``
+    (unimodality) or, with ``strict``, ``max(0, (f(ta) + f(tb) - K (tb - ta)) / 2)``.
+
+    Returns
+    -------
+    lo, hi : float
+    mono : int
+        +1 every primitive increasing, -1 every one decreasing (so the sum is
+        monotone and crosses 1 at most once), 0 otherwise. ``strict`` never
+        reports a monotone piece.
+    """
+    lo = 0.0
+    hi = 0.0
+    n_inc = 0
+    n_dec = 0
+    w = tb - ta
+    for s in range(ns):
+        f0 = fa[s]
+        f1 = fb[s]
+        d0 = fpa[s]
+        d1 = fpb[s]
+        if f0 == 0.0 and f1 == 0.0 and d0 == 0.0 and d1 == 0.0:
+            # outside the support at both ends (a piece that swallows a whole
+            # bump is ambiguous): bounded by Lipschitz, never monotone
+            K = lipschitz(hrec[sarr[s]], ta, tb)
+            hi += 0.5 * K * w
+            if K == 0.0:
+                n_inc += 1
+                n_dec += 1
+            continue
+        if not strict and d1 > 0.0 and d0 >= 0.0:
+            lo += f0
+            hi += f1
+            n_inc += 1
+        elif not strict and d0 < 0.0 and d1 <= 0.0:
+            lo += f1
+            hi += f0
+            n_dec += 1
+        else:
+            K = lipschitz(hrec[sarr[s]], ta, tb)
+            hi += 0.5 * (f0 + f1 + K * w)
+            if strict:
+                lo += max(0.0, 0.5 * (f0 + f1 - K * w))
+            else:
+                lo += min(f0, f1)
+    mono = 0
+    if not strict:
+        if n_inc == ns:
+            mono = 1
+        elif n_dec == ns:
+            mono = -1
+    return lo, hi, mono
+
+
+@kernel
+def hermite_point(ta, tb, ga, gb, da, db):
+    """Root estimate in ``[ta, tb]`` of g from ``g`` and ``g'`` at both ends.
+
+    The cubic Hermite interpolant is solved by Newton steps from the secant
+    point, each kept inside the bracket (a step leaving it, or a flat
+    derivative, falls back to the midpoint of the sub-bracket the cubic's
+    sign designates). ``ga`` and ``gb`` must have opposite signs.
+    """
+    w = tb - ta
+    if not w > 0.0:
+        return ta
+    if ga == gb:
+        return ta + 0.5 * w
+    m0 = da * w
+    m1 = db * w
+    lo = 0.0
+    hi = 1.0
+    s = ga / (ga - gb)
+    if not (s > 0.0 and s < 1.0):
+        s = 0.5
+    for _ in range(8):
+        s2 = s * s
+        s3 = s2 * s
+        p = (2.0 * s3 - 3.0 * s2 + 1.0) * ga + (s3 - 2.0 * s2 + s) * m0 \
+            + (-2.0 * s3 + 3.0 * s2) * gb + (s3 - s2) * m1
+        if p == 0.0:
+            break
+        # keep a bracket of the cubic's own root
+        if (p < 0.0) == (ga < 0.0):
+            lo = s
+        else:
+            hi = s
+        dp = (6.0 * s2 - 6.0 * s) * ga + (3.0 * s2 - 4.0 * s + 1.0) * m0 \
+            + (-6.0 * s2 + 6.0 * s) * gb + (3.0 * s2 - 2.0 * s) * m1
+        sn = s - p / dp if dp != 0.0 else -1.0
+        if not (sn > lo and sn < hi):
+            sn = 0.5 * (lo + hi)
+        if abs(sn - s) <= 1e-15:
+            s = sn
+            break
+        s = sn
+    return ta + s * w
+
+
+@kernel
+def refine_root(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz, a, b, ga, gb, da, db, tol, bisect,
+                m, inv_s2, norm, scratch):
+    """Converge on the crossing bracketed by ``[a, b]`` until it is narrower
+    than ``tol``.
+
+    ``ga = F(a) - 1`` and ``gb = F(b) - 1`` lie on opposite sides of the
+    iso-value (``F >= 1`` is inside); ``da``, ``db`` are ``F'`` along the ray.
+    Hermite mode takes the Hermite estimate, kept ``tol / 2`` away from the
+    bracket ends so a well-predicted root is bracketed to ``tol`` by the next
+    step; two steps in a row that fail to halve the bracket force a
+    bisection. ``bisect`` uses pure bisection.
+
+    Returns
+    -------
+    t : float
+        The crossing (Hermite estimate, or midpoint, of the final bracket).
+    gx, gy, gz : float
+        Gradient of F at the last point evaluated (within ``tol`` of t).
+    nev : int
+        Primitive evaluations.
+    have_grad : bool
+        False when no point was evaluated (the bracket was already narrow).
+    """
+    ina = ga >= 0.0
+    nev = 0
+    fails = 0
+    gx = 0.0
+    gy = 0.0
+    gz = 0.0
+    have = False
+    while b - a > tol:
+        w = b - a
+        if bisect or fails >= 2:
+            tm = a + 0.5 * w
+            fails = 0
+        else:
+            tm = hermite_point(a, b, ga, gb, da, db)
+            q = 0.5 * tol
+            if tm < a + q:
+                tm = a + q
+            elif tm > b - q:
+                tm = b - q
+        if not (tm > a and tm < b):
+            break
+        F, Gx, Gy, Gz, Fp = field_grad_along(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz, tm,
+                                             m, inv_s2, norm, scratch)
+        nev += ns
+        gx = Gx
+        gy = Gy
+        gz = Gz
+        have = True
+        g = F - 1.0
+        if (g >= 0.0) == ina:
+            a = tm
+            ga = g
+            da = Fp
+        else:
+            b = tm
+            gb = g
+            db = Fp
+        if b - a > 0.5 * w:
+            fails += 1
+        else:
+            fails = 0
+    if bisect:
+        t = 0.5 * (a + b)
+    else:
+        t = hermite_point(a, b, ga, gb, da, db)
+    return t, gx, gy, gz, nev, have
+
+
+@kernel
+def shade_crossing(shade, dx, dy, dz, gx, gy, gz, rgb):
+    """Colour of one crossing into ``rgb`` (3,): outward normal ``-grad F``;
+    the front colour where it faces the viewer (entry surface), the back
+    colour where it faces away (exit surface); two-sided Lambert +
+    Blinn-Phong with the viewer at ``-d``."""
+    g = math.sqrt(gx * gx + gy * gy + gz * gz)
+    if g > 0.0:
+        nx = -gx / g
+        ny = -gy / g
+        nz = -gz / g
+    else:
+        nx = -dx
+        ny = -dy
+        nz = -dz
+    nd = nx * dx + ny * dy + nz * dz
+    base = SH_FRONT
+    if nd > 0.0:
+        base = SH_BACK
+        nx = -nx
+        ny = -ny
+        nz = -nz
+    lx = shade[SH_LIGHT]
+    ly = shade[SH_LIGHT + 1]
+    lz = shade[SH_LIGHT + 2]
+    lam = max(nx * lx + ny * ly + nz * lz, 0.0)
+    hx = lx - dx
+    hy = ly - dy
+    hz = lz - dz
+    hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+    spec = 0.0
+    if hn > 0.0:
+        c = (nx * hx + ny * hy + nz * hz) / hn
+        if c > 0.0 and lam > 0.0:
+            spec = shade[SH_SPEC] * c ** shade[SH_SHINE]
+    k = shade[SH_AMB] + shade[SH_DIFF] * lam
+    for c3 in range(3):
+        v = shade[base + c3] * k + spec
+        rgb[c3] = min(max(v, 0.0), 1.0)
+
+
+@kernel
+def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, strict, bisect,
+               cut_support, keep_roots, shade, scratch, hprim, hrec, order, bps, sarr, cur_f, cur_fp,
+               st_t, st_f, st_fp, ct, cf, cfp, rgb, roots, cap, out4, counts):
+    """All crossings of the ray of pixel (i, j), shaded and composited.
+
+    Parameters
+    ----------
+    seg : (m, 10) float64
+        Segment table.
+    boxes2d : (m, 4) float64
+        Screen box of each segment's support, pixels: ``umin vmin umax vmax``
+        (pixel (i, j) has its centre at ``(i + 0.5, j + 0.5)``).
+    ids : int64
+        Bucket list; ``ids[i0:i1]`` is this pixel's bucket.
+    cam, shade : float64
+        Camera and shading arrays (module docstring).
+    tol : float
+        Crossing tolerance, mm.
+    strict, bisect, cut_support, keep_roots : bool
+        Lipschitz bounds only; pure bisection refinement; cut at support
+        entries and exits as well as at every t*; find every root (no early
+        stop; write them to ``roots``).
+    roots : (cap,) float64, out
+        The pixel's crossings, sorted (only with ``keep_roots``).
+    out4 : (4,) float64, out
+        Premultiplied RGB and alpha.
+    counts : (5,) int64, in/out
+        Evaluations added: isolation, refinement, shading; 1 added to
+        ``counts[3]`` when the opacity cut-off stopped the ray; ``counts[4]``:
+        the part of the isolation evaluations spent splitting ambiguous pieces.
+
+    Returns
+    -------
+    int
+        Number of crossings found, or -1 when ``roots`` was too small.
+    """
+    m = n // 2
+    inv_s2 = 1.0 / (sigma * sigma)
+    ox, oy, oz, dx, dy, dz = pixel_ray(cam, i, j)
+    u = i + 0.5
+    v = j + 0.5
+    nh = 0
+    for r in range(i0, i1):
+        g = ids[r]
+        if u < boxes2d[g, 0] or u > boxes2d[g, 2] or v < boxes2d[g, 1] or v > boxes2d[g, 3]:
+            continue
+        if ray_support(seg, g, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, hrec[nh]):
+            if hrec[nh, H_TOUT] > 0.0:
+                hprim[nh] = g
+                nh += 1
+    for a in range(nh):
+        ct[a] = math.nan
+    sort_hits(hrec, order, nh)
+    alpha = shade[SH_ALPHA]
+    maxa = shade[SH_MAXA]
+    opaque = shade[SH_OPAQUE] != 0.0
+    if opaque:
+        alpha = 1.0
+    acc_r = 0.0
+    acc_g = 0.0
+    acc_b = 0.0
+    acc_a = 0.0
+    cut = False
+    nroot = 0
+    a = 0
+    while a < nh:
+        # cluster of overlapping supports order[a:b] spanning [cs, ce]
+        b, cs, ce = next_cluster(hrec, order, a, nh)
+        if cs < 0.0:
+            cs = 0.0
+        bps[0] = cs
+        bps[1] = ce
+        nb = 2
+        for c in range(a, b):
+            r = order[c]
+            for col in (H_TSTAR, H_TIN, H_TOUT):
+                tv = hrec[r, col]
+                if tv > cs and tv < ce:
+                    bps[nb] = tv
+                    nb += 1
+                if not cut_support:
+                    break
+        nb = sort_unique(bps, nb)
+        for piece in range(nb - 1):
+            ta = bps[piece]
+            tb = bps[piece + 1]
+            ns = 0
+            fmax = 0.0
+            for c in range(a, b):
+                r = order[c]
+                if hrec[r, H_TIN] < tb and hrec[r, H_TOUT] > ta:
+                    sarr[ns] = r
+                    ns += 1
+                    fmax += hrec[r, H_FMAX]
+            if ns == 0 or fmax < 1.0 - 1e-10 * (1.0 + fmax):
+                continue   # the primitives' bounds on the whole ray exclude 1
+            fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, ta, m, inv_s2, norm,
+                                   scratch, cur_f, cur_fp, ct, cf, cfp)
+            _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, tb, m, inv_s2, norm,
+                                scratch, st_f[0], st_fp[0], ct, cf, cfp)
+            counts[0] += ne1 + ne2
+            tcur = ta
+            st_t[0] = tb
+            sp = 1
+            while sp > 0:
+                p = sp - 1
+                te = st_t[p]
+                fe = 0.0
+                for s in range(ns):
+                    fe += st_f[p, s]
+                lo, hi, mono = piece_bounds(hrec, sarr, ns, cur_f, cur_fp, st_f[p], st_fp[p], tcur, te, strict)
+                pad = 1e-10 * (1.0 + abs(hi))
+                width = te - tcur
+                tm = tcur + 0.5 * width
+                settle = lo > 1.0 + pad or hi < 1.0 - pad
+                if not settle and mono == 0 and width > tol and p + 2 <= MAX_STACK \
+                        and tm > tcur and tm < te:
+                    # ambiguous: split at the middle; the right part keeps slot p
+                    _, ne = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, tm, m, inv_s2, norm,
+                                       scratch, st_f[p + 1], st_fp[p + 1], ct, cf, cfp)
+                    counts[0] += ne
+                    counts[4] += ne
+                    st_t[p + 1] = tm
+                    sp = p + 2
+                    continue
+                if not settle and (fcur >= 1.0) != (fe >= 1.0):
+                    # one crossing (monotone piece) or an odd number within tol
+                    d0 = 0.0
+                    d1 = 0.0
+                    for s in range(ns):
+                        d0 += cur_fp[s]
+                        d1 += st_fp[p, s]
+                    t, gx, gy, gz, ne, have = refine_root(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz,
+                                                          tcur, te, fcur - 1.0, fe - 1.0, d0, d1, tol,
+                                                          bisect, m, inv_s2, norm, scratch)
+                    counts[1] += ne
+                    if keep_roots:
+                        if nroot >= cap:
+                            return -1
+                        roots[nroot] = t
+                    nroot += 1
+                    if not cut:
+                        if not have:
+                            _, gx, gy, gz, _ = field_grad_along(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz,
+                                                                t, m, inv_s2, norm, scratch)
+                            counts[2] += ns
+                        shade_crossing(shade, dx, dy, dz, gx, gy, gz, rgb)
+                        wgt = (1.0 - acc_a) * alpha
+                        acc_r += wgt * rgb[0]
+                        acc_g += wgt * rgb[1]
+                        acc_b += wgt * rgb[2]
+                        acc_a += wgt
+                        if opaque or (maxa < 1.0 and acc_a >= maxa):
+                            cut = True
+                            counts[3] += 1
+                            if not keep_roots:
+                                out4[0] = acc_r
+                                out4[1] = acc_g
+                                out4[2] = acc_b
+                                out4[3] = acc_a
+                                return nroot
+                # piece done: its right end becomes the current point
+                for s in range(ns):
+                    cur_f[s] = st_f[p, s]
+                    cur_fp[s] = st_fp[p, s]
+                fcur = fe
+                tcur = te
+                sp = p
+        a = b
+    out4[0] = acc_r
+    out4[1] = acc_g
+    out4[2] = acc_b
+    out4[3] = acc_a
+    return nroot
+
+
+@parallel_kernel
+def render_buckets(buckets, nbx, B, W, H, offsets, ids, seg, boxes2d, cam, n, sigma, norm, kmax,
+                   tol, strict, bisect, cut_support, keep_roots, shade, cap, rgba, count, ray_nroot, roots, stats):
+    """Render the pixels of the given buckets in parallel (one bucket per task).
+
+    Parameters
+    ----------
+    buckets : (nb,) int64
+        Flat bucket indices ``by * nbx + bx``.
+    B, W, H : int
+        Bucket edge and image size, pixels.
+    offsets, ids : int64
+        CSR bucket lists (each sorted by support entry depth).
+    rgba : (H, W, 4) float64, out
+        Premultiplied colour and alpha of each pixel.
+    count : (H, W) int64, out
+        Crossings found per pixel.
+    ray_nroot : (nb, B*B) int64, out
+        Crossings per ray of each bucket (row-major inside the bucket).
+    roots : (nb, cap) float64, out
+        With ``keep_roots``: each bucket's crossings, ray after ray.
+    stats : (nb, NSTAT) int64, out
+        Status and counters per bucket (``ST_*``).
+    """
+    nbk = buckets.shape[0]
+    for q in prange(nbk):
+        bidx = buckets[q]
+        by = bidx // nbx
+        bx = bidx - by * nbx
+        i0 = offsets[bidx]
+        i1 = offsets[bidx + 1]
+        nl = max(i1 - i0, 1)
+        scratch = np.empty(SCRATCH)
+        hprim = np.empty(nl, dtype=np.int64)
+        hrec = np.empty((nl, NHIT))
+        order = np.empty(nl, dtype=np.int64)
+        bps = np.empty(3 * nl + 2)
+        sarr = np.empty(nl, dtype=np.int64)
+        cur_f = np.empty(nl)
+        cur_fp = np.empty(nl)
+        st_t = np.empty(MAX_STACK)
+        st_f = np.empty((MAX_STACK, nl))
+        st_fp = np.empty((MAX_STACK, nl))
+        ct = np.empty(nl)
+        cf = np.empty(nl)
+        cfp = np.empty(nl)
+        rgb = np.empty(3)
+        out4 = np.empty(4)
+        counts = np.zeros(5, dtype=np.int64)
+        used = 0
+        nroot_tot = 0
+        status = OK
+        for ly in range(B):
+            j = by * B + ly
+            for lx in range(B):
+                i = bx * B + lx
+                ray_nroot[q, ly * B + lx] = 0
+                if i >= W or j >= H or status != OK:
+                    continue
+                nr = render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, strict,
+                                bisect, cut_support, keep_roots, shade, scratch, hprim, hrec, order, bps, sarr, cur_f,
+                                cur_fp, st_t, st_f, st_fp, ct, cf, cfp, rgb, roots[q, used:], cap - used,
+                                out4, counts)
+                if nr < 0:
+                    status = ROOTS_FULL
+                    continue
+                for c in range(4):
+                    rgba[j, i, c] = out4[c]
+                count[j, i] = nr
+                ray_nroot[q, ly * B + lx] = nr
+                nroot_tot += nr
+                if keep_roots:
+                    used += nr
+        stats[q, ST_STATUS] = status
+        stats[q, ST_EV_ISOLATE] = counts[0]
+        stats[q, ST_EV_REFINE] = counts[1]
+        stats[q, ST_EV_SHADE] = counts[2]
+        stats[q, ST_ROOTS] = nroot_tot
+        stats[q, ST_CUT] = counts[3]
+        stats[q, ST_EV_SPLIT] = counts[4]

@@ -1,0 +1,158 @@
+"""Meshed reference, metrics, `skelslice validate` and the error-vs-time sweep."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import shapely
+from click.testing import CliRunner
+
+from slicer import Skeleton
+from slicer.cli import main
+from validation.metrics import compare_layer, hausdorff, polygon_rings, rasterize_rings
+from validation.reference_mesh import reference_mesh, reference_sections
+
+FRAME = Skeleton([[0, 0, 0], [6, 0, 0], [6, 6, 0], [0, 6, 0], [3, 3, 3]],
+                 [[0, 1], [1, 2], [2, 3], [3, 0], [0, 4], [2, 4]], [[0.6, 0.6]] * 4 + [[0.6, 0.3]] * 2)
+
+
+def test_reference_mesh_is_a_closed_manifold_of_the_field():
+    s = Skeleton([[0, 0, -3], [0, 0, 3]], [[0, 1]], [[1.0, 1.0]])
+    man, info = reference_mesh(s, 0.1)
+    assert man.status().name == "NoError" and man.genus() == 0
+    # the field's solid: a cylinder of radius 1 with free ends only ~0.25 tau
+    # beyond the end points (math.md 1.5), not capsule caps of radius 1
+    zmin, zmax = man.bounding_box()[2], man.bounding_box()[5]
+    assert 3.2 < zmax < 3.3 and -3.3 < zmin < -3.2
+    sec = man.slice(0.0)
+    assert sec.area() == pytest.approx(math.pi, rel=3e-3)
+    assert 0 < info.error_3d < 0.01
+
+
+def test_section_of_a_band_equals_the_whole_mesh_section():
+    edge = 0.1
+    man, _ = reference_mesh(FRAME, edge)
+    lo = FRAME.support_bounds()[0] - edge
+    # a height between grid planes of the whole-box mesh, as the band expects
+    z = float(lo[2] + 14.5 * edge)
+    sec = reference_sections(FRAME, [z], edge)[0]
+    assert sec.polygons.is_valid
+    assert sec.polygons.area == pytest.approx(man.slice(z).area(), rel=1e-9)
+    finer = reference_sections(FRAME, [z], edge / 2)[0]
+    assert finer.info.error_3d < sec.info.error_3d        # chordal error shrinks with the edge
+
+
+def test_rasterize_matches_point_in_polygon():
+    rng = np.random.default_rng(3)
+    poly = shapely.Point(0.1, -0.2).buffer(1.3, 7).difference(shapely.Point(0.3, 0.1).buffer(0.4, 5))
+    poly = shapely.MultiPolygon([poly, shapely.box(1.6, 1.6, 2.4, 2.1)])
+    origin, ps = (-2.0 + rng.uniform(0, 0.1), 2.5), (0.043, 0.051)
+    H, W = 100, 110
+    got = rasterize_rings(polygon_rings(poly), origin, ps, H, W)
+    X, Y = np.meshgrid(origin[0] + np.arange(W) * ps[0], origin[1] - np.arange(H) * ps[1])
+    want = shapely.contains_xy(poly, X, Y)
+    assert np.array_equal(got, want)
+
+
+def test_hausdorff_matches_shapely():
+    a = shapely.Point(0, 0).buffer(1, 40)
+    b = shapely.Point(0.02, 0.01).buffer(0.99, 31)
+    want = shapely.hausdorff_distance(a.boundary, b.boundary, densify=0.25)
+    assert hausdorff(polygon_rings(a), polygon_rings(b)) == pytest.approx(want, rel=1e-12)
+
+
+def test_metrics_catch_a_wrong_reference():
+    from slicer.contours import layer_contours, layer_mask
+    from slicer.slicing import slice_skeleton
+
+    r = slice_skeleton(FRAME, 0.1)
+    k = int(np.argmax([m.sum() for m in r.iter_layers(1)]))
+    z = r.grid.origin[2] + k * r.grid.layer_height
+    ours = layer_contours(FRAME, r, k)
+    good = compare_layer(FRAME, ours, ours, z, layer_mask(r, k), r.grid.origin[:2], r.grid.pixel_size)
+    assert good["iou"] == 1.0 and good["hausdorff"] < 1e-12 and good["pixel_mismatch"] == 0
+    assert good["contour_raster_mismatch"] == 0
+    bad_ref = shapely.affinity.translate(ours, 0.05, 0.0)
+    bad = compare_layer(FRAME, ours, bad_ref, z, layer_mask(r, k), r.grid.origin[:2], r.grid.pixel_size,
+                        ref_bound=1e-3)
+    assert bad["hausdorff"] == pytest.approx(0.05, rel=1e-6)
+    assert bad["iou"] < 0.99 and bad["pixel_mismatch"] > 0 and bad["pixel_mismatch_unexplained"] > 0
+
+
+def test_validate_passes_on_a_small_lattice():
+    from sample_lattices import load_sample
+    from validation.validate import validate
+
+    rep = validate(load_sample("octet_2x2x2"), pixels=96, layers_checked=3)
+    assert rep["passed"], rep["checks"]
+    assert len(rep["layers"]) == 3
+    for row in rep["layers"]:
+        assert row["hausdorff"] <= row["mesh_bound"] + 1e-3
+        assert row["vertex_max_3d"] <= 1e-3
+        assert row["pixel_mismatch_unexplained"] == 0
+        assert row["iou"] > 0.99
+
+
+def test_cli_validate_pass_fail_and_report(tmp_path):
+    from sample_lattices import sample_path
+
+    scene = str(sample_path("cubic_2x2x2"))
+    runner = CliRunner()
+    rep = tmp_path / "rep"
+    res = runner.invoke(main, ["validate", scene, "--pixels", "80", "--layers-checked", "2", "--report", str(rep)])
+    assert res.exit_code == 0, res.output
+    assert "[pass] hausdorff_within_mesh_bound" in res.output
+    data = json.loads((rep / "report.json").read_text())
+    assert data["passed"] and len(data["layers"]) == 2 and data["images"]
+    for name in data["images"]:
+        assert (rep / name).stat().st_size > 0
+    # a threshold that cannot hold: exit status 1, the failed check named
+    res = runner.invoke(main, ["validate", scene, "--pixels", "80", "--layers-checked", "1",
+                               "--max-hausdorff", "1e-9"])
+    assert res.exit_code == 1
+    assert "[FAIL] max_hausdorff" in res.output
+    # an existing report folder is refused before any work (status 2)
+    res = runner.invoke(main, ["validate", scene, "--pixels", "80", "--report", str(rep)])
+    assert res.exit_code == 2 and "already exists" in res.output
+
+
+def test_python_m_slicer_validate_json(tmp_path):
+    from sample_lattices import sample_path
+
+    out = subprocess.run([sys.executable, "-m", "slicer", "validate", str(sample_path("cubic_2x2x2")),
+                          "--pixels", "64", "--layers-checked", "1", "--min-iou", "0.99", "--json"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    assert data["checks"]["min_iou"] and data["passed"]
+
+
+def test_error_time_sweep_small(tmp_path):
+    from validation.error_time import format_table, pareto, sweep
+
+    cfgs = [{"method": "interval", "pixels": 32, "layers": 16, "tol": 1e-3, "bucket": 64},
+            {"method": "interval", "pixels": 32, "layers": 16, "tol": 1e-2, "bucket": 64},
+            {"method": "dense", "pixels": 32, "layers": 16, "tol": None, "bucket": None}]
+    res = sweep("cubic_2x2x2", configs=cfgs, ref_pixels=192, ref_tol=1e-4)
+    rows = res["rows"]
+    assert len(rows) == 3
+    # the contour error follows the tolerance; the dense baseline has no root refinement
+    assert rows[0]["error_layer"] <= 1e-3 < rows[2]["error_layer"]
+    assert rows[0]["error_layer"] < rows[1]["error_layer"] <= 1e-2
+    front = pareto(rows, "error_layer")
+    assert front and all(0 <= i < 3 for i in front)
+    assert "Pareto" in format_table(res)
+    json.dumps(res)
+    pytest.importorskip("matplotlib")
+    from validation.error_time import plot
+
+    assert plot(res, tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_cli_bench_needs_a_benchmark():
+    res = CliRunner().invoke(main, ["bench"])
+    assert res.exit_code == 2 and "--error" in res.output
