@@ -232,6 +232,19 @@ def _piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
 
 
 @kernel
+def _piece_ends(cur_fp, st_f, st_fp, p, ns):
+    """F at the right end of stack piece ``p``, and F' at both its ends."""
+    fe = 0.0
+    dcur = 0.0
+    de = 0.0
+    for s in range(ns):
+        fe += st_f[p, s]
+        dcur += cur_fp[s]
+        de += st_fp[p, s]
+    return fe, dcur, de
+
+
+@kernel
 def _hermite_root(ta, tb, ga, gb, da, db):
     """Estimate of the root of g on [ta, tb] from g and g' at both ends
     (cubic Hermite, a few safeguarded Newton steps from the secant point).
@@ -384,9 +397,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             done = True
                         elif q1 < q0:
                             # spans: no centre left; refine the crossing(s) to span_tol
-                            fe = 0.0
-                            for s in range(ns):
-                                fe += st_f[p, s]
+                            fe, dcur, de = _piece_ends(cur_fp, st_f, st_fp, p, ns)
                             if (e_t - tcur <= span_tol or e_t <= zlo or tcur >= zhi
                                     or (abs(fcur - 1.0) <= SURFACE_BAND and abs(fe - 1.0) <= SURFACE_BAND)):
                                 # narrow enough, outside the grid, or F within rounding of 1 at
@@ -395,13 +406,6 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             else:
                                 if sp + 2 > st_kind.shape[0]:
                                     return -1, nev, nx
-                                fe = 0.0
-                                dcur = 0.0
-                                de = 0.0
-                                for s in range(ns):
-                                    fe += st_f[p, s]
-                                    dcur += cur_fp[s]
-                                    de += st_fp[p, s]
                                 w = e_t - tcur
                                 ts = tcur + 0.5 * w
                                 if mono != 0 and (fcur - 1.0) * (fe - 1.0) < 0.0 and sp < DEEP_SPANS:
@@ -436,11 +440,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             fe += st_f[p, s]
                         if spans and (fe >= 1.0) != inside:
                             # one crossing (an odd number) in (tcur, e_t): place it
-                            dcur = 0.0
-                            de = 0.0
-                            for s in range(ns):
-                                dcur += cur_fp[s]
-                                de += st_fp[p, s]
+                            fe, dcur, de = _piece_ends(cur_fp, st_f, st_fp, p, ns)
                             tr = _hermite_root(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
                             if not (tr > tcur and tr < e_t):
                                 tr = 0.5 * (tcur + e_t)
@@ -460,13 +460,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     # Hermite estimate of the crossing; elsewhere at the middle centre
                     km = (q0 + q1) // 2
                     if mono != 0 and q1 > q0 and sp < DEEP_CENTRES:
-                        fe = 0.0
-                        dcur = 0.0
-                        de = 0.0
-                        for s in range(ns):
-                            fe += st_f[p, s]
-                            dcur += cur_fp[s]
-                            de += st_fp[p, s]
+                        fe, dcur, de = _piece_ends(cur_fp, st_f, st_fp, p, ns)
                         if (fcur - 1.0) * (fe - 1.0) < 0.0:
                             tr = _hermite_root(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
                             kr = int(math.floor((tr - z0) / h + 0.5))
