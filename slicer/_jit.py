@@ -48,6 +48,13 @@ def _cache_root() -> Path:
 if CACHE and not os.environ.get("NUMBA_CACHE_DIR"):
     config.CACHE_DIR = str(_cache_root() / _kernel_source_hash())
 
+# Threading layer: GNU OpenMP first. Kernels are launched from several Python
+# threads at once (the `threads` executor); with the TBB layer such a process
+# can spin forever in tbb::finalize at interpreter exit. NUMBA_THREADING_LAYER
+# set by the user still wins.
+if not os.environ.get("NUMBA_THREADING_LAYER"):
+    config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+
 _COMMON = dict(cache=CACHE, error_model="numpy", fastmath=False)
 
 #: serial, GIL-free kernel (inner functions, per-tile work, Dask tasks)
