@@ -54,7 +54,9 @@ class ContourWriter(StackWriter):
     force : bool
         Replace an existing output.
     settings : formats.printers.PrintSettings, optional
-        Unused (contours are in scene mm); accepted as for every writer.
+        Accepted as for every writer; contours are in scene mm, or in plate
+        mm when a printer job places them (``grid`` is then the plate's, see
+        :func:`slicer.contours.iter_contours`).
 
     Notes
     -----

@@ -292,6 +292,30 @@ class Placement:
         origin = (0.5 * px, self.printer.display[1] - 0.5 * py, 0.5 * self.layer_height)
         return SliceGrid(origin, (px, py), self.layer_height, nx, ny, self.layers)
 
+    def offset(self, grid) -> tuple[float, float, float]:
+        """Translation (mm) from scene to plate coordinates.
+
+        Parameters
+        ----------
+        grid : slicer.grid.SliceGrid
+            The traced grid this placement was made for.
+
+        Returns
+        -------
+        dx, dy, dz : float, mm
+            A scene point ``(x, y, z)`` lands on the plate at
+            ``(x + dx, y + dy, z + dz)``: the centre of traced sub-pixel
+            ``(j, i)`` goes to the centre of plate sub-pixel
+            ``(j + dj, i + di)``, and the centre of traced layer ``k_first``
+            to the centre of plate layer 0 (``z = h / 2``).
+        """
+        spx, spy = grid.pixel_size
+        x0, y0, z0 = grid.origin
+        h = self.layer_height
+        return ((self.di + 0.5) * spx - x0,
+                self.printer.display[1] - (self.dj + 0.5) * spy - y0,
+                0.5 * h - (z0 + self.k_first * h))
+
 
 def place(result, printer: Printer, aa: int = 1, at=None) -> Placement:
     """Place a traced model on ``printer``'s plate.

@@ -607,7 +607,7 @@ def layer_contours(skel: Skeleton, result: SliceResult, k: int, tol: float = 1e-
 
 
 def iter_contours(skel: Skeleton, result: SliceResult, tol: float = 1e-3,
-                  stats: dict | None = None) -> Iterator[tuple[int, float, object]]:
+                  stats: dict | None = None, placement=None) -> Iterator[tuple[int, float, object]]:
     """Contours of every layer, bottom first.
 
     Parameters
@@ -618,6 +618,11 @@ def iter_contours(skel: Skeleton, result: SliceResult, tol: float = 1e-3,
     stats : dict, optional
         Filled with totals (``evaluations``, ``vertices``, ``refined``,
         ``unbracketed``).
+    placement : formats.printers.Placement, optional
+        Put the contours on a printer's plate, as the images are: only the
+        placed layers (``k_first`` on), numbered from 0, translated by
+        :meth:`~formats.printers.Placement.offset` (plate mm, z of plate
+        layer centres).
 
     Yields
     ------
@@ -627,14 +632,28 @@ def iter_contours(skel: Skeleton, result: SliceResult, tol: float = 1e-3,
     """
     tol = _check_tol(tol)
     g = result.grid
+    k_lo, k_hi = 0, g.layers
+    if placement is not None:
+        k_lo, k_hi = placement.k_first, placement.k_first + placement.layers
+        dx, dy, _ = placement.offset(g)
     for k, img in enumerate(result.iter_layers(1)):
+        if k < k_lo:
+            continue
+        if k >= k_hi:
+            break
         z = g.origin[2] + k * g.layer_height
         rings = mask_rings(skel, img.astype(bool), g.origin[:2], g.pixel_size, z, tol, stats=stats)
-        yield k, z, rings_to_multipolygon(rings)
+        polys = rings_to_multipolygon(rings)
+        if placement is None:
+            yield k, z, polys
+        else:
+            import shapely.affinity
+
+            yield k - k_lo, (k - k_lo + 0.5) * g.layer_height, shapely.affinity.translate(polys, dx, dy)
 
 
 def write_contours(skel: Skeleton, result: SliceResult, path, tol: float = 1e-3, force: bool = False,
-                   meta: dict | None = None) -> dict:
+                   meta: dict | None = None, placement=None) -> dict:
     """Write the contours of every layer to one GeoJSON or JSON file, atomically.
 
     ``.geojson``: a FeatureCollection, one Feature per layer (a MultiPolygon
@@ -644,7 +663,9 @@ def write_contours(skel: Skeleton, result: SliceResult, path, tol: float = 1e-3,
     carry the grid and ``meta`` (key ``skelslice``). Outer rings are
     counter-clockwise seen from +z, holes clockwise. Layers are streamed: the
     file is written to a temporary file beside ``path`` and renamed when
-    complete.
+    complete. With ``placement`` (a printer job) the layers and coordinates
+    are the plate's, as in the images (see :func:`iter_contours`), and the
+    grid written is the plate's.
 
     Returns
     -------
@@ -662,7 +683,8 @@ def write_contours(skel: Skeleton, result: SliceResult, path, tol: float = 1e-3,
     path = Path(path)
     check_destination(path, force)
     geo = path.suffix.lower() == ".geojson"
-    head = {"generator": "skelslice", "units": "mm", "tolerance": tol, "grid": result.grid.to_dict(),
+    grid = result.grid if placement is None else placement.grid
+    head = {"generator": "skelslice", "units": "mm", "tolerance": tol, "grid": grid.to_dict(),
             **(meta or {})}
     t0 = time.perf_counter()
     out = AtomicFile(path)
@@ -675,7 +697,7 @@ def write_contours(skel: Skeleton, result: SliceResult, path, tol: float = 1e-3,
                      + b', "features": [\n')
         else:
             fh.write(b'{"skelslice": ' + json.dumps(head).encode() + b', "layers": [\n')
-        for k, z, mp in iter_contours(skel, result, tol):
+        for k, z, mp in iter_contours(skel, result, tol, placement=placement):
             polys = []
             for poly in mp.geoms:
                 rs = [poly.exterior, *poly.interiors]

@@ -36,6 +36,8 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
     settings : formats.printers.PrintSettings, optional
         Printer placement, anti-aliasing and exposure for image formats (see
         :func:`slicer.antialias.render`); None writes ``result``'s own layers.
+        With a printer, contour formats are placed on the plate too (the same
+        layers and position as the images, coordinates in plate mm).
 
     Returns
     -------
@@ -51,11 +53,15 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
     contours = getattr(writer_cls, "kind", "image") == "contours"
     if contours and skel is None:
         raise ValueError(f"the {writer_cls.name} format writes contours: pass the skeleton (skel=...)")
+    placement = plate_placement(result, settings)
     if settings is not None and not contours:
         from .antialias import render
 
         grid, layers = render(result, settings)        # places on the plate, anti-aliases
         writer = writer_cls(out, grid, meta, force=force, settings=settings)
+    elif placement is not None:                        # contours on the printer's plate
+        grid = placement.grid
+        writer = writer_cls(out, grid, meta, force=force)
     else:
         grid, layers = result.grid, result.iter_layers()
         writer = writer_cls(out, result.grid, meta, force=force)
@@ -63,7 +69,8 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
         from .contours import iter_contours
 
         with writer:
-            bar = tqdm(iter_contours(skel, result, contour_tol), total=result.grid.layers, unit="layer",
+            bar = tqdm(iter_contours(skel, result, contour_tol, placement=placement), total=grid.layers,
+                       unit="layer",
                        disable=(None if progress is None else not progress), leave=False, desc="contours")
             for k, z, polys in bar:
                 writer.write_layer(k, z, polys)
@@ -74,6 +81,16 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
         for k, img in enumerate(bar):
             writer.write_layer(k, img)
     return time.perf_counter() - t0
+
+
+def plate_placement(result: SliceResult, settings):
+    """Where ``result`` lands on the plate of ``settings.printer``
+    (:func:`formats.printers.place`), or None without a printer."""
+    if settings is None or settings.printer is None:
+        return None
+    from formats.printers import place
+
+    return place(result, settings.printer, settings.aa, settings.at)
 
 
 def run_slice(skel: Skeleton, out, *, pixel_size: float | None = None, pixel_size_y: float | None = None,
@@ -163,9 +180,14 @@ def run_slice(skel: Skeleton, out, *, pixel_size: float | None = None, pixel_siz
     if contours is not None:
         from .contours import write_contours
 
-        contour_info = write_contours(skel, res, contours, contour_tol, force, meta)
+        contour_info = write_contours(skel, res, contours, contour_tol, force, meta,
+                                      placement=plate_placement(res, job.settings))
     images = getattr(WRITERS[job.fmt], "kind", "image") != "contours"
-    grid = render(res, job.settings)[0] if job.settings is not None and images else res.grid
+    if job.settings is not None and images:
+        grid = render(res, job.settings)[0]
+    else:
+        placement = plate_placement(res, job.settings)
+        grid = res.grid if placement is None else placement.grid
     return {**grid.to_dict(), **res.stats, "write_seconds": write_s, "runs": res.n_runs,
             "output": str(out), "format": job.fmt, "contours": contour_info}
 

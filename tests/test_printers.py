@@ -197,6 +197,51 @@ def test_chirality_survives_placement(ell, tmp_path):
     assert post_x - X.min() == pytest.approx(0.3, abs=0.1) and post_y - Y.min() == pytest.approx(0.3, abs=0.1)
 
 
+def test_contours_are_placed_like_the_images(ell, tmp_path):
+    """With --printer, a --contours side file and a CLI file hold plate mm and
+    plate layers: filled at the plate's pixel centres they give the plate
+    images, and the CLI box is the plate (its origin the plate's corner)."""
+    import shapely
+
+    from formats.cli import read_cli
+
+    zp, cj, cl = tmp_path / "e.zip", tmp_path / "e.json", tmp_path / "e.cli"
+    common = ["--printer", "prusa-sl1s", "--at", "30", "20", "--layer-height", "0.25", "-q"]
+    r = run("slice", ell, "-o", zp, "--contours", cj, *common)
+    assert r.exit_code == 0, r.output
+    r = run("slice", ell, "-o", cl, *common)
+    assert r.exit_code == 0, r.output
+    meta, imgs = _plate_layers(zp)
+    doc = json.loads(cj.read_text())
+    cli = read_cli(cl)
+    assert doc["skelslice"]["grid"]["origin"] == meta["origin"]
+    assert len(doc["layers"]) == len(cli.layers) == len(imgs) == meta["layers"]
+    assert np.allclose(cli.origin, 0.0)
+    px, py = meta["pixel_size"]
+    x0, y0 = meta["origin"][:2]
+    rows, cols = np.nonzero(np.any(np.stack(imgs) >= 128, axis=0))
+    r0, r1, c0, c1 = rows.min() - 3, rows.max() + 4, cols.min() - 3, cols.max() + 4
+    X, Y = np.meshgrid(x0 + np.arange(c0, c1) * px, y0 - np.arange(r0, r1) * py)
+    pts = shapely.points(X, Y)
+    inside_total = 0
+    for k, (lay, cli_lay, img) in enumerate(zip(doc["layers"], cli.layers, imgs)):
+        assert lay["layer"] == k and lay["z"] == pytest.approx((k + 0.5) * 0.25)
+        mp = shapely.MultiPolygon([shapely.Polygon(p[0], p[1:]) for p in lay["polygons"]])
+        want = img[r0:r1, c0:c1] >= 128
+        got = shapely.contains_xy(mp, X, Y)
+        near = shapely.dwithin(mp.boundary, pts, 3e-3) if not mp.is_empty else np.zeros_like(want)
+        assert np.array_equal(got[~near], want[~near]), k
+        # the CLI (1 um units) holds the same region, on the plate too
+        cm = cli_lay.multipolygon()
+        assert shapely.symmetric_difference(cm, mp).area <= 2e-3 * max(mp.length, 1e-9)
+        inside_total += int(want.sum())
+    assert inside_total > 500
+    # --at 30 20 centres the footprint there: so does the contours' box (to a pixel)
+    allp = shapely.union_all([shapely.Polygon(p[0], p[1:]) for lay in doc["layers"] for p in lay["polygons"]])
+    bx0, by0, bx1, by1 = allp.bounds
+    assert abs(0.5 * (bx0 + bx1) - 30) <= px and abs(0.5 * (by0 + by1) - 20) <= py
+
+
 def test_model_too_big_for_the_plate(tmp_path):
     scene = tmp_path / "long.json"
     Skeleton([[0, 0, 0], [150, 0, 0]], [[0, 1]], [[0.5, 0.5]]).save(scene)

@@ -9,7 +9,7 @@ each pixel the kernels
    clusters;
 2. cut each cluster at every member's support entry ``t_in``, exit ``t_out``
    and homothetic-distance minimum ``t*``;
-3. bound the field on each piece per primitive (:func:`piece_bounds`): a
+3. bound the field on each piece per primitive (:func:`slicer._kernels.rays.piece_bounds`): a
    monotone primitive gives its end values, an ambiguous one its directional
    Lipschitz bound. A piece whose interval excludes the iso-value 1 is
    settled; a piece on which every primitive is monotone the same way holds
@@ -17,7 +17,7 @@ each pixel the kernels
    than the tolerance (so a crossing pair wider than the tolerance is never
    missed, not even on a grazing ray);
 4. converge on each bracketed crossing with safeguarded cubic Hermite steps
-   (:func:`hermite_point`, end values and directional derivatives), or pure
+   (:func:`slicer._kernels.rays.hermite_point`, end values and directional derivatives), or pure
    bisection when asked, until the bracket is narrower than the tolerance;
 5. shade each crossing (outward normal ``-grad F / |grad F|``, Lambert +
    Blinn-Phong) and composite front to back; the ray stops once the
@@ -47,7 +47,8 @@ from numba import prange
 
 from .._jit import kernel, parallel_kernel
 from .field import SCRATCH, segment_eval
-from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz, ray_support
+from .rays import eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits, sort_unique
+from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, ray_support
 
 OK = 0
 ROOTS_FULL = 1
@@ -101,100 +102,6 @@ def pixel_rays(cam, W, H, origin, direction):
 
 
 @kernel
-def sort_hits(hrec, order, nh):
-    """``order[:nh]`` = the hits ``hrec[:nh]`` sorted by support entry t_in
-    (insertion sort, stable: bucket lists arrive nearly sorted)."""
-    for a in range(nh):
-        order[a] = a
-    for a in range(1, nh):
-        v = order[a]
-        key = hrec[v, H_TIN]
-        b = a - 1
-        while b >= 0 and hrec[order[b], H_TIN] > key:
-            order[b + 1] = order[b]
-            b -= 1
-        order[b + 1] = v
-
-
-@kernel
-def next_cluster(hrec, order, a, nh):
-    """The cluster of overlapping supports that starts at sorted hit ``a``.
-
-    Returns
-    -------
-    b : int
-        Hits ``order[a:b]`` overlap into one span.
-    cs, ce : float
-        The span ``[min t_in, max t_out]``.
-    """
-    cs = hrec[order[a], H_TIN]
-    ce = hrec[order[a], H_TOUT]
-    b = a + 1
-    while b < nh and hrec[order[b], H_TIN] < ce:
-        ce = max(ce, hrec[order[b], H_TOUT])
-        b += 1
-    return b, cs, ce
-
-
-@kernel
-def sort_unique(vals, nv):
-    """Sort ``vals[:nv]`` in place and drop repeated values; returns the new count."""
-    for a in range(1, nv):
-        v = vals[a]
-        b = a - 1
-        while b >= 0 and vals[b] > v:
-            vals[b + 1] = vals[b]
-            b -= 1
-        vals[b + 1] = v
-    if nv == 0:
-        return 0
-    w = 1
-    for a in range(1, nv):
-        if vals[a] != vals[w - 1]:
-            vals[w] = vals[a]
-            w += 1
-    return w
-
-
-@kernel
-def eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2, norm, scratch,
-               fo, fpo, ct, cf, cfp):
-    """Value and directional derivative ``grad f . d`` of the active primitives
-    ``hprim[sarr[:ns]]`` at ``o + t d``.
-
-    A primitive is zero (value and derivative) outside its support interval
-    ``(t_in, t_out)`` of ``hrec`` (padded outward), so it is not evaluated
-    there; each hit caches its last (t, f, f'), so a breakpoint shared by two
-    pieces is evaluated once. Writes ``fo[s]``, ``fpo[s]``; returns (sum of
-    f, evaluations done).
-    """
-    px = ox + t * dx
-    py = oy + t * dy
-    pz = oz + t * dz
-    tot = 0.0
-    nev = 0
-    for s in range(ns):
-        r = sarr[s]
-        if not (t > hrec[r, H_TIN] and t < hrec[r, H_TOUT]):
-            f = 0.0
-            fp = 0.0
-        elif ct[r] == t:
-            f = cf[r]
-            fp = cfp[r]
-        else:
-            f, gx, gy, gz = segment_eval(seg, hprim[r], px, py, pz, m, inv_s2, norm, True, scratch)
-            fp = gx * dx + gy * dy + gz * dz
-            ct[r] = t
-            cf[r] = f
-            cfp[r] = fp
-            nev += 1
-        fo[s] = f
-        fpo[s] = fp
-        tot += f
-    return tot, nev
-
-
-@kernel
 def field_grad_along(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2, norm, scratch):
     """F, its gradient (1/mm) and ``grad F . d`` at ``o + t d`` over the active
     primitives (no cache: refinement points are never revisited)."""
@@ -212,114 +119,6 @@ def field_grad_along(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2,
         Gy += gy
         Gz += gz
     return F, Gx, Gy, Gz, Gx * dx + Gy * dy + Gz * dz
-
-
-@kernel
-def piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
-    """Interval ``[lo, hi]`` of the summed field of the active primitives on
-    the ray piece ``[ta, tb]``, and whether the sum is monotone there.
-
-    Works for any ray direction: ``fpa``/``fpb`` are directional derivatives
-    along the ray. Per primitive (math.md §5.1): increasing (``f'(tb) > 0``,
-    ``f'(ta) >= 0``) gives ``[f(ta), f(tb)]``, decreasing the reverse; anything
-    else is ambiguous and bounded with the directional Lipschitz constant K:
-    ``hi = (f(ta) + f(tb) + K (tb - ta)) / 2``, ``lo = min(f(ta), f(tb))``
-    (unimodality) or, with ``strict``, ``max(0, (f(ta) + f(tb) - K (tb - ta)) / 2)``.
-
-    Returns
-    -------
-    lo, hi : float
-    mono : int
-        +1 every primitive increasing, -1 every one decreasing (so the sum is
-        monotone and crosses 1 at most once), 0 otherwise. ``strict`` never
-        reports a monotone piece.
-    """
-    lo = 0.0
-    hi = 0.0
-    n_inc = 0
-    n_dec = 0
-    w = tb - ta
-    for s in range(ns):
-        f0 = fa[s]
-        f1 = fb[s]
-        d0 = fpa[s]
-        d1 = fpb[s]
-        if f0 == 0.0 and f1 == 0.0 and d0 == 0.0 and d1 == 0.0:
-            # outside the support at both ends (a piece that swallows a whole
-            # bump is ambiguous): bounded by Lipschitz, never monotone
-            K = lipschitz(hrec[sarr[s]], ta, tb)
-            hi += 0.5 * K * w
-            if K == 0.0:
-                n_inc += 1
-                n_dec += 1
-            continue
-        if not strict and d1 > 0.0 and d0 >= 0.0:
-            lo += f0
-            hi += f1
-            n_inc += 1
-        elif not strict and d0 < 0.0 and d1 <= 0.0:
-            lo += f1
-            hi += f0
-            n_dec += 1
-        else:
-            K = lipschitz(hrec[sarr[s]], ta, tb)
-            hi += 0.5 * (f0 + f1 + K * w)
-            if strict:
-                lo += max(0.0, 0.5 * (f0 + f1 - K * w))
-            else:
-                lo += min(f0, f1)
-    mono = 0
-    if not strict:
-        if n_inc == ns:
-            mono = 1
-        elif n_dec == ns:
-            mono = -1
-    return lo, hi, mono
-
-
-@kernel
-def hermite_point(ta, tb, ga, gb, da, db):
-    """Root estimate in ``[ta, tb]`` of g from ``g`` and ``g'`` at both ends.
-
-    The cubic Hermite interpolant is solved by Newton steps from the secant
-    point, each kept inside the bracket (a step leaving it, or a flat
-    derivative, falls back to the midpoint of the sub-bracket the cubic's
-    sign designates). ``ga`` and ``gb`` must have opposite signs.
-    """
-    w = tb - ta
-    if not w > 0.0:
-        return ta
-    if ga == gb:
-        return ta + 0.5 * w
-    m0 = da * w
-    m1 = db * w
-    lo = 0.0
-    hi = 1.0
-    s = ga / (ga - gb)
-    if not (s > 0.0 and s < 1.0):
-        s = 0.5
-    for _ in range(8):
-        s2 = s * s
-        s3 = s2 * s
-        p = (2.0 * s3 - 3.0 * s2 + 1.0) * ga + (s3 - 2.0 * s2 + s) * m0 \
-            + (-2.0 * s3 + 3.0 * s2) * gb + (s3 - s2) * m1
-        if p == 0.0:
-            break
-        # keep a bracket of the cubic's own root
-        if (p < 0.0) == (ga < 0.0):
-            lo = s
-        else:
-            hi = s
-        dp = (6.0 * s2 - 6.0 * s) * ga + (3.0 * s2 - 4.0 * s + 1.0) * m0 \
-            + (-6.0 * s2 + 6.0 * s) * gb + (3.0 * s2 - 2.0 * s) * m1
-        sn = s - p / dp if dp != 0.0 else -1.0
-        if not (sn > lo and sn < hi):
-            sn = 0.5 * (lo + hi)
-        if abs(sn - s) <= 1e-15:
-            s = sn
-            break
-        s = sn
-    return ta + s * w
 
 
 @kernel
@@ -543,9 +342,7 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
             while sp > 0:
                 p = sp - 1
                 te = st_t[p]
-                fe = 0.0
-                for s in range(ns):
-                    fe += st_f[p, s]
+                fe, d0, d1 = piece_ends(cur_fp, st_f[p], st_fp[p], ns)
                 lo, hi, mono = piece_bounds(hrec, sarr, ns, cur_f, cur_fp, st_f[p], st_fp[p], tcur, te, strict)
                 pad = 1e-10 * (1.0 + abs(hi))
                 width = te - tcur
@@ -563,11 +360,6 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
                     continue
                 if not settle and (fcur >= 1.0) != (fe >= 1.0):
                     # one crossing (monotone piece) or an odd number within tol
-                    d0 = 0.0
-                    d1 = 0.0
-                    for s in range(ns):
-                        d0 += cur_fp[s]
-                        d1 += st_fp[p, s]
                     t, gx, gy, gz, ne, have = refine_root(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz,
                                                           tcur, te, fcur - 1.0, fe - 1.0, d0, d1, tol,
                                                           bisect, m, inv_s2, norm, scratch)

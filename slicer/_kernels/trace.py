@@ -30,6 +30,7 @@ from numba import prange
 
 from .._jit import kernel, parallel_kernel
 from .field import SCRATCH, segment_eval
+from .rays import eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits, sort_unique
 from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz, ray_support
 
 OK = 0
@@ -83,35 +84,6 @@ def _emit(k0, k1, inside, rk0, rk1, nrun, cap):
 
 
 @kernel
-def _eval_set(seg, hprim, hrec, sarr, ns, px, py, z, m, inv_s2, norm, scratch, fo, fpo, ct, cf, cfp):
-    """f and df/dz of the ns primitives sarr[:ns] at (px, py, z); returns the
-    sum and the number of evaluations done. Each hit caches its last value
-    (ct, cf, cfp), so a breakpoint shared by two pieces is evaluated once;
-    at its own support entry or exit a primitive is 0 with slope 0 (the
-    kernel vanishes to order n/2 there), so it is not evaluated."""
-    tot = 0.0
-    nev = 0
-    for s in range(ns):
-        r = sarr[s]
-        if ct[r] == z:
-            f = cf[r]
-            gz = cfp[r]
-        elif hrec[r, H_TIN] == z or hrec[r, H_TOUT] == z:
-            f = 0.0
-            gz = 0.0
-        else:
-            f, gx, gy, gz = segment_eval(seg, hprim[r], px, py, z, m, inv_s2, norm, True, scratch)
-            ct[r] = z
-            cf[r] = f
-            cfp[r] = gz
-            nev += 1
-        fo[s] = f
-        fpo[s] = gz
-        tot += f
-    return tot, nev
-
-
-@kernel
 def _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order):
     """Hit records of the bucket's segments ids[i0:i1] with the vertical ray
     at (px, py), kept if they reach [zlo, zhi]; returns the count, sorted by t_in
@@ -126,32 +98,8 @@ def _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, h
             if hrec[nh, H_TOUT] > zlo and hrec[nh, H_TIN] < zhi:
                 hprim[nh] = ids[r]
                 nh += 1
-    # insertion sort by t_in (lists are short and nearly sorted by zmin)
-    for a in range(nh):
-        order[a] = a
-    for a in range(1, nh):
-        v = order[a]
-        key = hrec[v, H_TIN]
-        b = a - 1
-        while b >= 0 and hrec[order[b], H_TIN] > key:
-            order[b + 1] = order[b]
-            b -= 1
-        order[b + 1] = v
+    sort_hits(hrec, order, nh)
     return nh
-
-
-@kernel
-def _next_cluster(hrec, order, a, nh):
-    """The cluster of overlapping supports starting at sorted hit ``a``.
-
-    Returns (b, cs, ce): hits order[a:b] overlap into the span [cs, ce]."""
-    cs = hrec[order[a], H_TIN]
-    ce = hrec[order[a], H_TOUT]
-    b = a + 1
-    while b < nh and hrec[order[b], H_TIN] < ce:
-        ce = max(ce, hrec[order[b], H_TOUT])
-        b += 1
-    return b, cs, ce
 
 
 @kernel
@@ -167,107 +115,6 @@ def _cluster_field(seg, hprim, hrec, order, a, b, px, py, z, m, inv_s2, norm, sc
             f += fi
             nev += 1
     return f, nev
-
-
-@kernel
-def _sort_unique(vals, nv):
-    """Sort vals[:nv] in place and drop duplicates; returns the new count."""
-    for a in range(1, nv):
-        v = vals[a]
-        b = a - 1
-        while b >= 0 and vals[b] > v:
-            vals[b + 1] = vals[b]
-            b -= 1
-        vals[b + 1] = v
-    if nv == 0:
-        return 0
-    w = 1
-    for a in range(1, nv):
-        if vals[a] != vals[w - 1]:
-            vals[w] = vals[a]
-            w += 1
-    return w
-
-
-@kernel
-def _piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
-    """Interval [Flo, Fhi] of the sum of the active primitives on [ta, tb], and
-    the piece's monotonicity: +1 (every primitive increasing), -1 (every one
-    decreasing), 0 otherwise."""
-    lo = 0.0
-    hi = 0.0
-    n_inc = 0
-    n_dec = 0
-    for s in range(ns):
-        f0 = fa[s]
-        f1 = fb[s]
-        d0 = fpa[s]
-        d1 = fpb[s]
-        if not strict and d1 > 0.0 and not d0 < 0.0:
-            lo += f0
-            hi += f1
-            n_inc += 1
-        elif not strict and d0 < 0.0 and not d1 > 0.0:
-            lo += f1
-            hi += f0
-            n_dec += 1
-        else:
-            K = lipschitz(hrec[sarr[s]], ta, tb)
-            w = K * (tb - ta)
-            hi += 0.5 * (f0 + f1 + w)
-            if strict:
-                lo += max(0.0, 0.5 * (f0 + f1 - w))
-            else:
-                lo += min(f0, f1)
-            if f0 == 0.0 and f1 == 0.0 and w == 0.0:
-                # no contribution on this piece: neutral for monotonicity
-                n_inc += 1
-                n_dec += 1
-    mono = 0
-    if n_inc == ns:
-        mono = 1
-    elif n_dec == ns:
-        mono = -1
-    return lo, hi, mono
-
-
-@kernel
-def _piece_ends(cur_fp, st_f, st_fp, p, ns):
-    """F at the right end of stack piece ``p``, and F' at both its ends."""
-    fe = 0.0
-    dcur = 0.0
-    de = 0.0
-    for s in range(ns):
-        fe += st_f[p, s]
-        dcur += cur_fp[s]
-        de += st_fp[p, s]
-    return fe, dcur, de
-
-
-@kernel
-def _hermite_root(ta, tb, ga, gb, da, db):
-    """Estimate of the root of g on [ta, tb] from g and g' at both ends
-    (cubic Hermite, a few safeguarded Newton steps from the secant point).
-    Only used to place the next split, so it needs no guarantee."""
-    w = tb - ta
-    if ga == gb:
-        return 0.5 * (ta + tb)
-    s = ga / (ga - gb)
-    # Hermite basis on [0, 1]
-    m0 = da * w
-    m1 = db * w
-    for _ in range(4):
-        s2 = s * s
-        s3 = s2 * s
-        p = (2 * s3 - 3 * s2 + 1) * ga + (s3 - 2 * s2 + s) * m0 + (-2 * s3 + 3 * s2) * gb + (s3 - s2) * m1
-        dp = (6 * s2 - 6 * s) * ga + (3 * s2 - 4 * s + 1) * m0 + (-6 * s2 + 6 * s) * gb + (3 * s2 - 2 * s) * m1
-        if dp == 0.0:
-            break
-        sn = s - p / dp
-        if not (sn >= 0.0 and sn <= 1.0):
-            break
-        s = sn
-    return ta + s * w
 
 
 @kernel
@@ -308,7 +155,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     inside = False      # spans: the class of the last point whose value is known
     a = 0
     while a < nh:
-        b, cs, ce = _next_cluster(hrec, order, a, nh)
+        b, cs, ce = next_cluster(hrec, order, a, nh)
         kc0 = _first_centre(cs, z0, h, K)
         kc1 = _first_centre(ce, z0, h, K) - 1
         if kc1 >= kc0 or (spans and ce > zlo and cs < zhi):
@@ -334,7 +181,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                 if ts > hrec[r, H_TIN] and ts < hrec[r, H_TOUT]:
                     bps[nb] = ts
                     nb += 1
-            nb = _sort_unique(bps, nb)
+            nb = sort_unique(bps, nb)
             tlast = cs
             for j in range(nb - 1):
                 ta = bps[j]
@@ -354,10 +201,10 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                 if ns == 0 or fmax < 1.0 - 1e-10 * (1.0 + fmax):
                     # the primitives' bounds on the whole ray already exclude 1
                     continue
-                fcur, ne1 = _eval_set(seg, hprim, hrec, sarr, ns, px, py, ta, m, inv_s2, norm, scratch,
-                                      cur_f, cur_fp, ct, cf, cfp)
-                _, ne2 = _eval_set(seg, hprim, hrec, sarr, ns, px, py, tb, m, inv_s2, norm, scratch,
-                                    st_f[0], st_fp[0], ct, cf, cfp)
+                fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ta, m, inv_s2,
+                                       norm, scratch, cur_f, cur_fp, ct, cf, cfp)
+                _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, tb, m, inv_s2,
+                                    norm, scratch, st_f[0], st_fp[0], ct, cf, cfp)
                 nev += ne1 + ne2
                 if spans and (fcur >= 1.0) != inside:
                     # only after a skipped stretch (below the grid): enter here
@@ -387,7 +234,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     if q1 < q0 and not spans:
                         done = True
                     else:
-                        lo, hi, mono = _piece_bounds(hrec, sarr, ns, cur_f, cur_fp, st_f[p], st_fp[p],
+                        lo, hi, mono = piece_bounds(hrec, sarr, ns, cur_f, cur_fp, st_f[p], st_fp[p],
                                                      tcur, e_t, strict)
                         pad = 1e-10 * (1.0 + abs(hi))
                         if lo > 1.0 + pad:
@@ -397,7 +244,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             done = True
                         elif q1 < q0:
                             # spans: no centre left; refine the crossing(s) to span_tol
-                            fe, dcur, de = _piece_ends(cur_fp, st_f, st_fp, p, ns)
+                            fe, dcur, de = piece_ends(cur_fp, st_f[p], st_fp[p], ns)
                             if (e_t - tcur <= span_tol or e_t <= zlo or tcur >= zhi
                                     or (abs(fcur - 1.0) <= SURFACE_BAND and abs(fe - 1.0) <= SURFACE_BAND)):
                                 # narrow enough, outside the grid, or F within rounding of 1 at
@@ -409,14 +256,15 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                                 w = e_t - tcur
                                 ts = tcur + 0.5 * w
                                 if mono != 0 and (fcur - 1.0) * (fe - 1.0) < 0.0 and sp < DEEP_SPANS:
-                                    tr = _hermite_root(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
+                                    tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
                                     if tr - tcur <= e_t - tr:
                                         ts = tr + 0.5 * span_tol
                                     else:
                                         ts = tr - 0.5 * span_tol
                                     ts = min(max(ts, tcur + 0.125 * w), e_t - 0.125 * w)
-                                fm, ne1 = _eval_set(seg, hprim, hrec, sarr, ns, px, py, ts, m, inv_s2, norm,
-                                                    scratch, st_f[p + 1], st_fp[p + 1], ct, cf, cfp)
+                                fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ts,
+                                                     m, inv_s2, norm, scratch, st_f[p + 1], st_fp[p + 1],
+                                                     ct, cf, cfp)
                                 nev += ne1
                                 st_kind[p + 1] = 0
                                 st_t[p + 1] = ts
@@ -440,8 +288,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             fe += st_f[p, s]
                         if spans and (fe >= 1.0) != inside:
                             # one crossing (an odd number) in (tcur, e_t): place it
-                            fe, dcur, de = _piece_ends(cur_fp, st_f, st_fp, p, ns)
-                            tr = _hermite_root(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
+                            fe, dcur, de = piece_ends(cur_fp, st_f[p], st_fp[p], ns)
+                            tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
                             if not (tr > tcur and tr < e_t):
                                 tr = 0.5 * (tcur + e_t)
                             if nx >= xcap:
@@ -460,9 +308,9 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     # Hermite estimate of the crossing; elsewhere at the middle centre
                     km = (q0 + q1) // 2
                     if mono != 0 and q1 > q0 and sp < DEEP_CENTRES:
-                        fe, dcur, de = _piece_ends(cur_fp, st_f, st_fp, p, ns)
+                        fe, dcur, de = piece_ends(cur_fp, st_f[p], st_fp[p], ns)
                         if (fcur - 1.0) * (fe - 1.0) < 0.0:
-                            tr = _hermite_root(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
+                            tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
                             kr = int(math.floor((tr - z0) / h + 0.5))
                             km = min(max(kr, q0), q1)
                     zm = z0 + km * h
@@ -471,8 +319,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                         return -1, nev, nx
                     # right part keeps slot p (its right-end data are already there)
                     st_k0[p] = km + 1
-                    fm, ne1 = _eval_set(seg, hprim, hrec, sarr, ns, px, py, zm, m, inv_s2, norm, scratch,
-                                        st_f[p + 2], st_fp[p + 2], ct, cf, cfp)
+                    fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, zm, m, inv_s2,
+                                         norm, scratch, st_f[p + 2], st_fp[p + 2], ct, cf, cfp)
                     nev += ne1
                     st_kind[p + 1] = 1
                     st_k0[p + 1] = km
@@ -553,7 +401,7 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
     nev = 0
     a = 0
     while a < nh:
-        b, cs, ce = _next_cluster(hrec, order, a, nh)
+        b, cs, ce = next_cluster(hrec, order, a, nh)
         k = _first_centre(cs, z0, h, K)
         kend = _first_centre(ce, z0, h, K)
         t = cs

@@ -1,0 +1,247 @@
+"""Ray-walk helpers shared by the slicing tracer and the renderer (EG22 §3-4).
+
+Both walk a ray ``r(t) = o + t d`` (``|d| = 1``; slicing: ``o = (x, y, 0)``,
+``d = e_z`` and ``t = z``) through the supports of the primitives it meets:
+hits are sorted by support entry, grouped into clusters of overlapping
+supports, cut at breakpoints, and every piece between two breakpoints is
+bounded per primitive from the values and directional derivatives at its
+ends. These are those common steps; the two walkers differ only in what they
+do with an ambiguous piece (split at layer centres, or bisect toward a root).
+
+Hit records are rows of ``hrec`` in the layout of
+:mod:`slicer._kernels.raysupport` (``H_TIN``, ``H_TOUT``, ...).
+"""
+from __future__ import annotations
+
+from .._jit import kernel
+from .field import segment_eval
+from .raysupport import H_TIN, H_TOUT, lipschitz
+
+
+@kernel
+def sort_hits(hrec, order, nh):
+    """``order[:nh]`` = the hits ``hrec[:nh]`` sorted by support entry t_in
+    (insertion sort, stable: bucket lists arrive nearly sorted)."""
+    for a in range(nh):
+        order[a] = a
+    for a in range(1, nh):
+        v = order[a]
+        key = hrec[v, H_TIN]
+        b = a - 1
+        while b >= 0 and hrec[order[b], H_TIN] > key:
+            order[b + 1] = order[b]
+            b -= 1
+        order[b + 1] = v
+
+
+@kernel
+def next_cluster(hrec, order, a, nh):
+    """The cluster of overlapping supports that starts at sorted hit ``a``.
+
+    Returns
+    -------
+    b : int
+        Hits ``order[a:b]`` overlap into one span.
+    cs, ce : float
+        The span ``[min t_in, max t_out]``.
+    """
+    cs = hrec[order[a], H_TIN]
+    ce = hrec[order[a], H_TOUT]
+    b = a + 1
+    while b < nh and hrec[order[b], H_TIN] < ce:
+        ce = max(ce, hrec[order[b], H_TOUT])
+        b += 1
+    return b, cs, ce
+
+
+@kernel
+def sort_unique(vals, nv):
+    """Sort ``vals[:nv]`` in place and drop repeated values; returns the new count."""
+    for a in range(1, nv):
+        v = vals[a]
+        b = a - 1
+        while b >= 0 and vals[b] > v:
+            vals[b + 1] = vals[b]
+            b -= 1
+        vals[b + 1] = v
+    if nv == 0:
+        return 0
+    w = 1
+    for a in range(1, nv):
+        if vals[a] != vals[w - 1]:
+            vals[w] = vals[a]
+            w += 1
+    return w
+
+
+@kernel
+def eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2, norm, scratch,
+               fo, fpo, ct, cf, cfp):
+    """Value and directional derivative ``grad f . d`` of the active primitives
+    ``hprim[sarr[:ns]]`` at ``o + t d``.
+
+    A primitive is zero (value and derivative) outside the open support
+    interval ``(t_in, t_out)`` of its hit record, and at its ends (the kernel
+    vanishes to order n/2 there), so it is not evaluated there; each hit
+    caches its last (t, f, f') in ``ct``, ``cf``, ``cfp``, so a breakpoint
+    shared by two pieces is evaluated once.
+
+    Returns
+    -------
+    F : float
+        Sum of the values; ``fo[s]``, ``fpo[s]`` receive each one's f and f'.
+    nev : int
+        Primitive evaluations done.
+    """
+    px = ox + t * dx
+    py = oy + t * dy
+    pz = oz + t * dz
+    tot = 0.0
+    nev = 0
+    for s in range(ns):
+        r = sarr[s]
+        if not (t > hrec[r, H_TIN] and t < hrec[r, H_TOUT]):
+            f = 0.0
+            fp = 0.0
+        elif ct[r] == t:
+            f = cf[r]
+            fp = cfp[r]
+        else:
+            f, gx, gy, gz = segment_eval(seg, hprim[r], px, py, pz, m, inv_s2, norm, True, scratch)
+            fp = gx * dx + gy * dy + gz * dz
+            ct[r] = t
+            cf[r] = f
+            cfp[r] = fp
+            nev += 1
+        fo[s] = f
+        fpo[s] = fp
+        tot += f
+    return tot, nev
+
+
+@kernel
+def piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
+    """Interval ``[lo, hi]`` of the summed field of the active primitives on
+    the ray piece ``[ta, tb]``, and whether the sum is monotone there.
+
+    ``fa``/``fpa`` and ``fb``/``fpb`` hold each primitive's value and
+    directional derivative at ``ta`` and ``tb``. Per primitive (math.md
+    §5.1): increasing (``f'(tb) > 0``, ``f'(ta) >= 0``) gives
+    ``[f(ta), f(tb)]``, decreasing the reverse; anything else is ambiguous
+    and bounded with the directional Lipschitz constant K:
+    ``hi = (f(ta) + f(tb) + K (tb - ta)) / 2``, ``lo = min(f(ta), f(tb))``
+    (unimodality) or, with ``strict``, ``max(0, (f(ta) + f(tb) - K (tb - ta)) / 2)``.
+
+    Returns
+    -------
+    lo, hi : float
+    mono : int
+        +1 every primitive increasing, -1 every one decreasing (so the sum is
+        monotone and crosses 1 at most once), 0 otherwise. ``strict`` never
+        reports a monotone piece.
+    """
+    lo = 0.0
+    hi = 0.0
+    n_inc = 0
+    n_dec = 0
+    w = tb - ta
+    for s in range(ns):
+        f0 = fa[s]
+        f1 = fb[s]
+        d0 = fpa[s]
+        d1 = fpb[s]
+        if f0 == 0.0 and f1 == 0.0 and d0 == 0.0 and d1 == 0.0:
+            # zero with zero slope at both ends (outside the support, or a
+            # piece that swallows a whole bump): Lipschitz, never monotone
+            # unless the bound says the primitive is zero on the piece
+            K = lipschitz(hrec[sarr[s]], ta, tb)
+            hi += 0.5 * K * w
+            if K == 0.0:
+                n_inc += 1
+                n_dec += 1
+            continue
+        if not strict and d1 > 0.0 and d0 >= 0.0:
+            lo += f0
+            hi += f1
+            n_inc += 1
+        elif not strict and d0 < 0.0 and d1 <= 0.0:
+            lo += f1
+            hi += f0
+            n_dec += 1
+        else:
+            K = lipschitz(hrec[sarr[s]], ta, tb)
+            hi += 0.5 * (f0 + f1 + K * w)
+            if strict:
+                lo += max(0.0, 0.5 * (f0 + f1 - K * w))
+            else:
+                lo += min(f0, f1)
+    mono = 0
+    if not strict:
+        if n_inc == ns:
+            mono = 1
+        elif n_dec == ns:
+            mono = -1
+    return lo, hi, mono
+
+
+@kernel
+def piece_ends(fa_p, fb, fpb, ns):
+    """Sums over the ``ns`` active primitives of a piece: F at its right end
+    (``fb``), and F' at its left (``fa_p``) and right (``fpb``) ends."""
+    fe = 0.0
+    da = 0.0
+    db = 0.0
+    for s in range(ns):
+        fe += fb[s]
+        da += fa_p[s]
+        db += fpb[s]
+    return fe, da, db
+
+
+@kernel
+def hermite_point(ta, tb, ga, gb, da, db):
+    """Root estimate in ``[ta, tb]`` of g from ``g`` and ``g'`` at both ends.
+
+    The cubic Hermite interpolant is solved by Newton steps from the secant
+    point, each kept inside the bracket (a step leaving it, or a flat
+    derivative, falls back to the midpoint of the sub-bracket the cubic's
+    sign designates), until a step moves less than 1e-15 of the bracket:
+    the result is the cubic's root, a continuous function of the inputs, so
+    pieces that differ by rounding (another tiling) give the same estimate
+    to rounding. ``ga`` and ``gb`` should have opposite signs; the result
+    always lies in ``[ta, tb]``.
+    """
+    w = tb - ta
+    if not w > 0.0:
+        return ta
+    if ga == gb:
+        return ta + 0.5 * w
+    m0 = da * w
+    m1 = db * w
+    lo = 0.0
+    hi = 1.0
+    s = ga / (ga - gb)
+    if not (s > 0.0 and s < 1.0):
+        s = 0.5
+    for _ in range(64):   # Newton converges in a few steps; halvings bound the rest
+        s2 = s * s
+        s3 = s2 * s
+        p = (2.0 * s3 - 3.0 * s2 + 1.0) * ga + (s3 - 2.0 * s2 + s) * m0 \
+            + (-2.0 * s3 + 3.0 * s2) * gb + (s3 - s2) * m1
+        if p == 0.0:
+            break
+        # keep a bracket of the cubic's own root
+        if (p < 0.0) == (ga < 0.0):
+            lo = s
+        else:
+            hi = s
+        dp = (6.0 * s2 - 6.0 * s) * ga + (3.0 * s2 - 4.0 * s + 1.0) * m0 \
+            + (-6.0 * s2 + 6.0 * s) * gb + (3.0 * s2 - 2.0 * s) * m1
+        sn = s - p / dp if dp != 0.0 else -1.0
+        if not (sn > lo and sn < hi):
+            sn = 0.5 * (lo + hi)
+        if abs(sn - s) <= 1e-15:
+            s = sn
+            break
+        s = sn
+    return ta + s * w
