@@ -2,7 +2,7 @@
 
 * GOO: a decoder written here from Elegoo's spec (formats.md §2.1), checking
   every header offset, record, checksum and pixel; plus the ``goo`` crate
-  checker (``tests/readers``) when it is built.
+  checker (``tests/readers``, built by the ``checker`` fixture where cargo exists).
 * SL1/SL1S: every reader rule of formats.md §1.3 (PrusaSlicer importer,
   Prusa firmware, UVtools) checked on our archives; and, when the Debian
   ``prusa-slicer`` package is installed, ``prusa-slicer --load
@@ -37,7 +37,6 @@ from formats.printers import PRINTERS
 from slicer import Skeleton
 from slicer.cli import main
 
-READERS = Path(__file__).with_name("readers") / "target" / "release" / "skelslice-readers"
 
 
 def run(*args):
@@ -208,13 +207,11 @@ def test_goo_file_read_back(ell, tmp_path):
     assert h["volume"] == pytest.approx(solid * 0.019 * 0.024 * 0.4, rel=1e-5)
 
 
-@pytest.mark.skipif(not READERS.is_file(), reason=f"goo crate checker not built ({READERS}); "
-                    "build with: cargo build --release --locked --manifest-path tests/readers/Cargo.toml")
-def test_goo_read_by_the_goo_crate(ell, tmp_path):
+def test_goo_read_by_the_goo_crate(checker, ell, tmp_path):
     out = tmp_path / "c.goo"
     assert run("slice", ell, "-o", out, "--printer", "elegoo-mars-4-ultra", "--layer-height", "0.25", "--aa", "2",
                "-q").exit_code == 0
-    rep = subprocess.run([str(READERS), "goo", str(out)], capture_output=True, text=True, timeout=300)
+    rep = subprocess.run([str(checker), "goo", str(out)], capture_output=True, text=True, timeout=300)
     assert rep.returncode == 0, rep.stdout + rep.stderr
     doc = json.loads(rep.stdout)
     h, layers = read_goo(out)

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -25,24 +23,6 @@ from slicer import Skeleton
 from slicer.grid import SliceGrid
 
 pytestmark = pytest.mark.slow
-
-READERS = Path(__file__).resolve().parent / "readers"
-
-
-@pytest.fixture(scope="session")
-def checker() -> Path:
-    cargo = shutil.which("cargo") or str(Path.home() / ".cargo" / "bin" / "cargo")
-    if not Path(cargo).exists():
-        pytest.skip("cargo is not installed: cannot build the Rust checker in tests/readers")
-    env = {**os.environ, "CARGO_TARGET_DIR": str(READERS / "target")}
-    r = subprocess.run([cargo, "build", "--release", "--locked", "--quiet",
-                        "--manifest-path", str(READERS / "Cargo.toml")],
-                       capture_output=True, text=True, timeout=900, env=env)
-    assert r.returncode == 0, f"cargo build failed:\n{r.stderr}"
-    exe = READERS / "target" / "release" / "skelslice-readers"
-    assert exe.is_file()
-    return exe
-
 
 def check(exe: Path, kind: str, path: Path, ok: bool = True) -> dict:
     r = subprocess.run([str(exe), kind, str(path)], capture_output=True, text=True, timeout=120)
