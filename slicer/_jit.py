@@ -60,7 +60,12 @@ _COMMON = dict(cache=CACHE, error_model="numpy", fastmath=False)
 #: serial, GIL-free kernel (inner functions, per-tile work, Dask tasks)
 kernel = njit(nogil=True, **_COMMON)
 
+#: small helper inlined into its callers at Numba IR level: no call, so no
+#: atomic reference counting of the array arguments (in the innermost loops
+#: that bookkeeping costs more than the arithmetic)
+inline_kernel = njit(inline="always", nogil=True, **_COMMON)
+
 #: parallel kernel (``prange`` over points, tiles or buckets)
 parallel_kernel = njit(parallel=True, nogil=True, **_COMMON)
 
-__all__ = ["CACHE", "kernel", "parallel_kernel"]
+__all__ = ["CACHE", "kernel", "inline_kernel", "parallel_kernel"]

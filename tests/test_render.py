@@ -204,9 +204,10 @@ def test_ray_support_on_random_rays_matches_brute_force():
         o = target - rng.normal(size=3) * 10
         d = target - o
         d /= np.linalg.norm(d)
-        rec = np.zeros(NHIT)
+        recs = np.zeros((1, NHIT))
+        rec = recs[0]
         hit = ray_support(seg, 0, *o, *d, skel.degree, skel.sigma, skel.normalisation,
-                          kprime_max(skel.degree, skel.sigma, skel.normalisation), rec)
+                          kprime_max(skel.degree, skel.sigma, skel.normalisation), recs, 0)
         t_end = np.linalg.norm(target - o) + np.linalg.norm(b - a) + 2 * skel.sigma * r.max() + 1.0
         t = np.linspace(0, t_end, 4001)
         step = t[1]

@@ -116,14 +116,15 @@ def _lipschitz_case(L, r0, r1, tilt, off, ta_frac, w_frac):
     skel = Skeleton([[0, 0, 0], L * d], [[0, 1]], [[r0, r1]])
     seg = segment_table(skel)
     n, sigma, norm = skel.degree, skel.sigma, skel.normalisation
-    rec = np.empty(NHIT)
+    recs = np.empty((1, NHIT))
+    rec = recs[0]
     ox, oy = off * max(r0, r1), 0.3 * off * max(r0, r1)
-    if not ray_support(seg, 0, ox, oy, 0.0, 0.0, 0.0, 1.0, n, sigma, norm, kprime_max(n, sigma, norm), rec):
+    if not ray_support(seg, 0, ox, oy, 0.0, 0.0, 0.0, 1.0, n, sigma, norm, kprime_max(n, sigma, norm), recs, 0):
         return None
     tin, tout = rec[H_TIN], rec[H_TOUT]
     ta = tin + ta_frac * (tout - tin)
     tb = min(tout, ta + w_frac * 8 * max(r0, r1))
-    return skel, rec, ox, oy, ta, tb, lipschitz(rec, ta, tb)
+    return skel, rec, ox, oy, ta, tb, lipschitz(recs, 0, ta, tb)
 
 
 @settings(max_examples=60, deadline=None)

@@ -160,8 +160,9 @@ def test_inclusion_and_lipschitz_bounds_are_sound(ends, r0, r1, ox, oy, u, v):
     skel = Skeleton([a, b], [[0, 1]], [[r0, r1]])
     seg = segment_table(skel)
     n, sigma, norm = skel.degree, skel.sigma, skel.normalisation
-    rec = np.empty(NHIT)
-    if not ray_support(seg, 0, ox, oy, 0.0, 0.0, 0.0, 1.0, n, sigma, norm, kprime_max(n, sigma, norm), rec):
+    recs = np.empty((1, NHIT))
+    rec = recs[0]
+    if not ray_support(seg, 0, ox, oy, 0.0, 0.0, 0.0, 1.0, n, sigma, norm, kprime_max(n, sigma, norm), recs, 0):
         # a miss must really be a miss
         zs = np.linspace(-4, 4, 801)
         f = skel.field(np.stack([np.full_like(zs, ox), np.full_like(zs, oy), zs], 1))
@@ -179,7 +180,7 @@ def test_inclusion_and_lipschitz_bounds_are_sound(ends, r0, r1, ox, oy, u, v):
     P = np.stack([np.full_like(zs, ox), np.full_like(zs, oy), zs], 1)
     f = skel.field(P)
     dfdz = skel.gradient(P)[:, 2]
-    K = lipschitz(rec, ta, tb)
+    K = lipschitz(recs, 0, ta, tb)
     assert np.all(np.abs(dfdz) <= K * (1 + 1e-9) + 1e-12)
     f0, f1 = f[0], f[-1]
     d0, d1 = dfdz[0], dfdz[-1]

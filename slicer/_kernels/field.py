@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import inline_kernel, kernel
 
 SCRATCH = 72
 # 1/k for k < 256: the moment series multiplies instead of dividing per term
@@ -164,28 +164,33 @@ def support_interval(seg, i, px, py, pz, inv_s2):
     return ta, tb, root_a, root_b
 
 
-@kernel
-def _poly_mul_quad(src, n_src, r0, r1, r2, dst):
-    """dst[0 : n_src + 2] = src[0 : n_src] * (r0 + r1 y + r2 y^2)."""
+@inline_kernel
+def _poly_mul_quad(w, src, n_src, r0, r1, r2, dst):
+    """w[dst : dst + n_src + 2] = w[src : src + n_src] * (r0 + r1 y + r2 y^2).
+
+    Offsets into one work array rather than array views: a view costs an
+    atomic reference-count increment and decrement per call.
+    """
     for j in range(n_src + 2):
-        dst[j] = 0.0
+        w[dst + j] = 0.0
     for j in range(n_src):
-        c = src[j]
-        dst[j] += c * r0
-        dst[j + 1] += c * r1
-        dst[j + 2] += c * r2
+        c = w[src + j]
+        w[dst + j] += c * r0
+        w[dst + j + 1] += c * r1
+        w[dst + j + 2] += c * r2
 
 
-@kernel
-def _moments(Y, d, l, nmax, J, Yp):
-    """J[j] = int_0^Y y^j / (1 - d y) dy for j = 0..nmax (math.md §2.4).
+@inline_kernel
+def _moments(Y, d, l, nmax, w, J, Yp):
+    """w[J + j] = int_0^Y y^j / (1 - d y) dy for j = 0..nmax (math.md §2.4).
 
-    ``Yp`` must hold ``Y^j`` for j = 0..nmax+1.
+    ``w[Yp + j]`` must hold ``Y^j`` for j = 0..nmax+1 (``J``, ``Yp``: offsets
+    into the work array ``w``).
     """
     z = d * Y
     if d == 0.0:
         for j in range(nmax + 1):
-            J[j] = Yp[j + 1] * _RECIP[j + 1]
+            w[J + j] = w[Yp + j + 1] * _RECIP[j + 1]
     elif z <= 0.5 or z ** nmax <= 0.015625:
         # series for J[nmax], then the damping downward recurrence.  The
         # upward recurrence amplifies errors by up to z^-nmax, so it is only
@@ -199,13 +204,13 @@ def _moments(Y, d, l, nmax, J, Yp):
             if term < 1e-17 * s:
                 break
             zk *= z
-        J[nmax] = Yp[nmax + 1] * s
+        w[J + nmax] = w[Yp + nmax + 1] * s
         for j in range(nmax, 0, -1):
-            J[j - 1] = d * J[j] + Yp[j] * _RECIP[j]
+            w[J + j - 1] = d * w[J + j] + w[Yp + j] * _RECIP[j]
     else:
-        J[0] = math.log1p(d * l) / d
+        w[J + 0] = math.log1p(d * l) / d
         for j in range(1, nmax + 1):
-            J[j] = (J[j - 1] - Yp[j] / j) / d
+            w[J + j] = (w[J + j - 1] - w[Yp + j] / j) / d
 
 
 @kernel
@@ -278,36 +283,36 @@ def segment_eval(seg, i, px, py, pz, m, inv_s2, norm, grad, scratch):
     if root_b:
         r1 = -(r0 / Y + r2 * Y)   # R(Y) = 0 exactly at a support root
     nmax = 2 * m
-    # scratch layout: [0:17] R^(m-1), [17:34] R^m, [34:51] J, [51:70] Y^j
-    pa = scratch[0:17]
-    pb = scratch[17:34]
-    J = scratch[34:51]
-    Yp = scratch[51:70]
-    Yp[0] = 1.0
+    # scratch layout (offsets, not views): [0:17] R^(m-1), [17:34] R^m, [34:51] J, [51:70] Y^j
+    pa = 0
+    pb = 17
+    J = 34
+    Yp = 51
+    scratch[Yp + 0] = 1.0
     for j in range(1, nmax + 3):
-        Yp[j] = Yp[j - 1] * Y
-    pa[0] = 1.0
+        scratch[Yp + j] = scratch[Yp + j - 1] * Y
+    scratch[pa + 0] = 1.0
     deg = 0
     for _ in range(m - 1):
-        _poly_mul_quad(pa, deg + 1, r0, r1, r2, pb)
+        _poly_mul_quad(scratch, pa, deg + 1, r0, r1, r2, pb)
         deg += 2
         for j in range(deg + 1):
-            pa[j] = pb[j]
+            scratch[pa + j] = scratch[pb + j]
     # pa = R^(m-1) (degree 2m-2), pb = R^m (degree 2m)
-    _poly_mul_quad(pa, deg + 1, r0, r1, r2, pb)
-    _moments(Y, d, l, nmax, J, Yp)
+    _poly_mul_quad(scratch, pa, deg + 1, r0, r1, r2, pb)
+    _moments(Y, d, l, nmax, scratch, J, Yp)
     f = 0.0
     for j in range(nmax + 1):
-        f += pb[j] * J[j]
+        f += scratch[pb + j] * scratch[J + j]
     f *= norm
     if not grad:
         return f, 0.0, 0.0, 0.0
     h0 = 0.0
     h1 = 0.0
     for j in range(nmax - 1):
-        c = pa[j]
-        t1 = Yp[j + 1] / (j + 1)
-        t2 = Yp[j + 2] / (j + 2)
+        c = scratch[pa + j]
+        t1 = scratch[Yp + j + 1] / (j + 1)
+        t2 = scratch[Yp + j + 2] / (j + 2)
         h0 += c * (t1 - d * t2)
         h1 += c * t2
     s = -2.0 * m * norm * inv_s2 / (taua * taua)

@@ -9,7 +9,11 @@ ends. These are those common steps; the two walkers differ only in what they
 do with an ambiguous piece (split at layer centres, or bisect toward a root).
 
 Hit records are rows of ``hrec`` in the layout of
-:mod:`slicer._kernels.raysupport` (``H_TIN``, ``H_TOUT``, ...).
+:mod:`slicer._kernels.raysupport` (``H_TIN``, ``H_TOUT``, ...). Per-primitive
+values and slopes at the ends of pieces are rows of 2-D arrays ``F``, ``FP``
+(one row per stack slot, one column per active primitive), passed with row
+indices: slicing a row out would cost an atomic reference-count increment
+and decrement per call, a third of the run time in this inner loop.
 """
 from __future__ import annotations
 
@@ -76,7 +80,7 @@ def sort_unique(vals, nv):
 
 @kernel
 def eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2, norm, scratch,
-               fo, fpo, ct, cf, cfp):
+               F, FP, row, ct, cf, cfp):
     """Value and directional derivative ``grad f . d`` of the active primitives
     ``hprim[sarr[:ns]]`` at ``o + t d``.
 
@@ -88,8 +92,9 @@ def eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2,
 
     Returns
     -------
-    F : float
-        Sum of the values; ``fo[s]``, ``fpo[s]`` receive each one's f and f'.
+    tot : float
+        Sum of the values; ``F[row, s]``, ``FP[row, s]`` receive each one's f
+        and f'.
     nev : int
         Primitive evaluations done.
     """
@@ -113,18 +118,18 @@ def eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2,
             cf[r] = f
             cfp[r] = fp
             nev += 1
-        fo[s] = f
-        fpo[s] = fp
+        F[row, s] = f
+        FP[row, s] = fp
         tot += f
     return tot, nev
 
 
 @kernel
-def piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
+def piece_bounds(hrec, sarr, ns, F, FP, ia, ib, ta, tb, strict):
     """Interval ``[lo, hi]`` of the summed field of the active primitives on
     the ray piece ``[ta, tb]``, and whether the sum is monotone there.
 
-    ``fa``/``fpa`` and ``fb``/``fpb`` hold each primitive's value and
+    Rows ``ia`` and ``ib`` of ``F``/``FP`` hold each primitive's value and
     directional derivative at ``ta`` and ``tb``. Per primitive (math.md
     §5.1): increasing (``f'(tb) > 0``, ``f'(ta) >= 0``) gives
     ``[f(ta), f(tb)]``, decreasing the reverse; anything else is ambiguous
@@ -146,15 +151,15 @@ def piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
     n_dec = 0
     w = tb - ta
     for s in range(ns):
-        f0 = fa[s]
-        f1 = fb[s]
-        d0 = fpa[s]
-        d1 = fpb[s]
+        f0 = F[ia, s]
+        f1 = F[ib, s]
+        d0 = FP[ia, s]
+        d1 = FP[ib, s]
         if f0 == 0.0 and f1 == 0.0 and d0 == 0.0 and d1 == 0.0:
             # zero with zero slope at both ends (outside the support, or a
             # piece that swallows a whole bump): Lipschitz, never monotone
             # unless the bound says the primitive is zero on the piece
-            K = lipschitz(hrec[sarr[s]], ta, tb)
+            K = lipschitz(hrec, sarr[s], ta, tb)
             hi += 0.5 * K * w
             if K == 0.0:
                 n_inc += 1
@@ -169,7 +174,7 @@ def piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
             hi += f0
             n_dec += 1
         else:
-            K = lipschitz(hrec[sarr[s]], ta, tb)
+            K = lipschitz(hrec, sarr[s], ta, tb)
             hi += 0.5 * (f0 + f1 + K * w)
             if strict:
                 lo += max(0.0, 0.5 * (f0 + f1 - K * w))
@@ -185,16 +190,17 @@ def piece_bounds(hrec, sarr, ns, fa, fpa, fb, fpb, ta, tb, strict):
 
 
 @kernel
-def piece_ends(fa_p, fb, fpb, ns):
-    """Sums over the ``ns`` active primitives of a piece: F at its right end
-    (``fb``), and F' at its left (``fa_p``) and right (``fpb``) ends."""
+def piece_ends(F, FP, ia, ib, ns):
+    """Sums over the ``ns`` active primitives of a piece whose ends are rows
+    ``ia`` (left) and ``ib`` (right): F at its right end, and F' at its left
+    and right ends."""
     fe = 0.0
     da = 0.0
     db = 0.0
     for s in range(ns):
-        fe += fb[s]
-        da += fa_p[s]
-        db += fpb[s]
+        fe += F[ib, s]
+        da += FP[ia, s]
+        db += FP[ib, s]
     return fe, da, db
 
 

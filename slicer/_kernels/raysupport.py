@@ -12,7 +12,7 @@ import math
 from .._jit import kernel
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 
-# layout of the per-hit record returned in ``out`` by ray_support
+# layout of the per-hit record written by ray_support into a row of ``hrec``
 H_TIN, H_TOUT, H_TSTAR, H_LIP, H_S0, H_S1, H_TP0, H_TP1, H_FMAX, H_REACH = range(10)
 NHIT = 10
 
@@ -71,7 +71,7 @@ def _quad_neg_interval(A, B, C):
 
 
 @kernel
-def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, out):
+def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, hrec, row):
     """Intersect ray ``o + t d`` with the support of segment ``i``.
 
     Parameters
@@ -85,8 +85,8 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, out):
         Kernel degree; ``sigma``, ``norm``: support factor and normalisation.
     kmax : float
         max |k'| (:func:`kprime_max`).
-    out : (NHIT,) float64
-        Filled on a hit: t_in, t_out (padded outward), t* (cut), Lipschitz
+    hrec : (nh, NHIT) float64
+        Hit records; row ``row`` is filled on a hit: t_in, t_out (padded outward), t* (cut), Lipschitz
         factor C (so that |f'| <= C * max(|D+|, |D-|) on a piece), skeleton
         range s0, s1, the projection t_proj(s) = tp0 + s tp1, fmax, an
         upper bound of the field anywhere on the ray, and the reach
@@ -180,8 +180,8 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, out):
             if tc + r > t_out:
                 t_out = tc + r
     pad = 1e-9 * (abs(t_in) + abs(t_out) + L + sigma * (tau0 + dtau))
-    out[H_TIN] = t_in - pad
-    out[H_TOUT] = t_out + pad
+    hrec[row, H_TIN] = t_in - pad
+    hrec[row, H_TOUT] = t_out + pad
     # pre-segmentation cut: argmin of the homothetic distance along the line
     best_s = 0.0
     best_r = Cp / (tau0 * tau0)
@@ -199,33 +199,33 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, out):
             if rs < best_r:
                 best_s = ss
                 best_r = rs
-    out[H_TSTAR] = wd + best_s * Dd
+    hrec[row, H_TSTAR] = wd + best_s * Dd
     xmin = math.sqrt(max(best_r, 0.0))
     if xmin <= sigma / math.sqrt(n - 1.0):
         kp = kmax
     else:
         kp = kprime_abs(xmin, n, sigma, norm)
     tmin = tau0 + s0 * dtau
-    out[H_LIP] = kp * L / (tmin * tmin)
+    hrec[row, H_LIP] = kp * L / (tmin * tmin)
     # field bound on the whole ray: every skeleton point q(s), s in [s0, s1],
     # is at homothetic distance >= xmin, so f <= k(xmin) * int ds L / tau(s)
     if xmin >= sigma:
-        out[H_FMAX] = 0.0
+        hrec[row, H_FMAX] = 0.0
     else:
         kx = norm * (1.0 - xmin * xmin / (sigma * sigma)) ** (n // 2)
-        out[H_FMAX] = kx * L * (s1 - s0) / tmin * (1.0 + 1e-12)
-    out[H_S0] = s0
-    out[H_S1] = s1
-    out[H_TP0] = wd
-    out[H_TP1] = Dd
+        hrec[row, H_FMAX] = kx * L * (s1 - s0) / tmin * (1.0 + 1e-12)
+    hrec[row, H_S0] = s0
+    hrec[row, H_S1] = s1
+    hrec[row, H_TP0] = wd
+    hrec[row, H_TP1] = Dd
     # tau grows with s (table orientation), so tau(s1) is the largest radius on S;
     # padded far beyond the rounding of the t_proj(s) = t solves in lipschitz()
-    out[H_REACH] = sigma * (tau0 + s1 * dtau) * (1.0 + 1e-9) + 1e-9 * (abs(wd) + abs(Dd))
+    hrec[row, H_REACH] = sigma * (tau0 + s1 * dtau) * (1.0 + 1e-9) + 1e-9 * (abs(wd) + abs(Dd))
     return True
 
 
 @kernel
-def lipschitz(rec, ta, tb):
+def lipschitz(hrec, r, ta, tb):
     """Bound on |f'(t)| for t in [ta, tb] from a hit record (math.md §4.2).
 
     D+ (D-) is the part of the skeleton range that lies ahead of (behind) some
@@ -237,31 +237,31 @@ def lipschitz(rec, ta, tb):
 
     Parameters
     ----------
-    rec : (NHIT,) float64
-        Record filled by :func:`ray_support`.
+    hrec : (nh, NHIT) float64
+        Hit records; row ``r`` was filled by :func:`ray_support` (a row
+        index rather than a row view: a view costs atomic reference counting
+        in this hot path).
     ta, tb : float
         Piece of the ray.
     """
-    s0 = rec[H_S0]
-    s1 = rec[H_S1]
-    tp0 = rec[H_TP0]
-    tp1 = rec[H_TP1]
-    R = rec[H_REACH]
+    s0 = hrec[r, H_S0]
+    s1 = hrec[r, H_S1]
+    tp0 = hrec[r, H_TP0]
+    tp1 = hrec[r, H_TP1]
+    R = hrec[r, H_REACH]
     # |D+| = |{s in S : ta < tp(s) < tb + R}|, |D-| = |{s in S : ta - R < tp(s) < tb}|
-    if tp1 > 0.0:
+    if tp1 != 0.0:
+        # skeleton parameters s whose projection tp0 + s tp1 is ta, tb, ta - R, tb + R
         sa = (ta - tp0) / tp1
         sb = (tb - tp0) / tp1
         sa_r = (ta - R - tp0) / tp1
         sb_r = (tb + R - tp0) / tp1
-        dp = min(s1, sb_r) - max(s0, sa)
-        dm = min(s1, sb) - max(s0, sa_r)
-    elif tp1 < 0.0:
-        sa = (ta - tp0) / tp1
-        sb = (tb - tp0) / tp1
-        sa_r = (ta - R - tp0) / tp1
-        sb_r = (tb + R - tp0) / tp1
-        dp = min(s1, sa) - max(s0, sb_r)
-        dm = min(s1, sa_r) - max(s0, sb)
+        if tp1 > 0.0:
+            dp = min(s1, sb_r) - max(s0, sa)
+            dm = min(s1, sb) - max(s0, sa_r)
+        else:
+            dp = min(s1, sa) - max(s0, sb_r)
+            dm = min(s1, sa_r) - max(s0, sb)
     else:
         dp = (s1 - s0) if (tp0 > ta and tp0 < tb + R) else 0.0
         dm = (s1 - s0) if (tp0 < tb and tp0 > ta - R) else 0.0
@@ -270,4 +270,4 @@ def lipschitz(rec, ta, tb):
         w = 0.0
     if w > s1 - s0:
         w = s1 - s0
-    return rec[H_LIP] * w
+    return hrec[r, H_LIP] * w

@@ -236,7 +236,7 @@ def shade_crossing(shade, dx, dy, dz, gx, gy, gz, rgb):
 
 @kernel
 def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, strict, bisect,
-               cut_support, keep_roots, shade, scratch, hprim, hrec, order, bps, sarr, cur_f, cur_fp,
+               cut_support, keep_roots, shade, scratch, hprim, hrec, order, bps, sarr,
                st_t, st_f, st_fp, ct, cf, cfp, rgb, roots, cap, out4, counts):
     """All crossings of the ray of pixel (i, j), shaded and composited.
 
@@ -274,6 +274,7 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
     m = n // 2
     inv_s2 = 1.0 / (sigma * sigma)
     ox, oy, oz, dx, dy, dz = pixel_ray(cam, i, j)
+    cur = st_f.shape[0] - 1     # row of the values at the current point (stack slots below it)
     u = i + 0.5
     v = j + 0.5
     nh = 0
@@ -281,7 +282,7 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
         g = ids[r]
         if u < boxes2d[g, 0] or u > boxes2d[g, 2] or v < boxes2d[g, 1] or v > boxes2d[g, 3]:
             continue
-        if ray_support(seg, g, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, hrec[nh]):
+        if ray_support(seg, g, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, hrec, nh):
             if hrec[nh, H_TOUT] > 0.0:
                 hprim[nh] = g
                 nh += 1
@@ -332,9 +333,9 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
             if ns == 0 or fmax < 1.0 - 1e-10 * (1.0 + fmax):
                 continue   # the primitives' bounds on the whole ray exclude 1
             fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, ta, m, inv_s2, norm,
-                                   scratch, cur_f, cur_fp, ct, cf, cfp)
+                                   scratch, st_f, st_fp, cur, ct, cf, cfp)
             _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, tb, m, inv_s2, norm,
-                                scratch, st_f[0], st_fp[0], ct, cf, cfp)
+                                scratch, st_f, st_fp, 0, ct, cf, cfp)
             counts[0] += ne1 + ne2
             tcur = ta
             st_t[0] = tb
@@ -342,8 +343,8 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
             while sp > 0:
                 p = sp - 1
                 te = st_t[p]
-                fe, d0, d1 = piece_ends(cur_fp, st_f[p], st_fp[p], ns)
-                lo, hi, mono = piece_bounds(hrec, sarr, ns, cur_f, cur_fp, st_f[p], st_fp[p], tcur, te, strict)
+                fe, d0, d1 = piece_ends(st_f, st_fp, cur, p, ns)
+                lo, hi, mono = piece_bounds(hrec, sarr, ns, st_f, st_fp, cur, p, tcur, te, strict)
                 pad = 1e-10 * (1.0 + abs(hi))
                 width = te - tcur
                 tm = tcur + 0.5 * width
@@ -352,7 +353,7 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
                         and tm > tcur and tm < te:
                     # ambiguous: split at the middle; the right part keeps slot p
                     _, ne = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, tm, m, inv_s2, norm,
-                                       scratch, st_f[p + 1], st_fp[p + 1], ct, cf, cfp)
+                                       scratch, st_f, st_fp, p + 1, ct, cf, cfp)
                     counts[0] += ne
                     counts[4] += ne
                     st_t[p + 1] = tm
@@ -391,8 +392,8 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
                                 return nroot
                 # piece done: its right end becomes the current point
                 for s in range(ns):
-                    cur_f[s] = st_f[p, s]
-                    cur_fp[s] = st_fp[p, s]
+                    st_f[cur, s] = st_f[p, s]
+                    st_fp[cur, s] = st_fp[p, s]
                 fcur = fe
                 tcur = te
                 sp = p
@@ -442,11 +443,9 @@ def render_buckets(buckets, nbx, B, W, H, offsets, ids, seg, boxes2d, cam, n, si
         order = np.empty(nl, dtype=np.int64)
         bps = np.empty(3 * nl + 2)
         sarr = np.empty(nl, dtype=np.int64)
-        cur_f = np.empty(nl)
-        cur_fp = np.empty(nl)
         st_t = np.empty(MAX_STACK)
-        st_f = np.empty((MAX_STACK, nl))
-        st_fp = np.empty((MAX_STACK, nl))
+        st_f = np.empty((MAX_STACK + 1, nl))    # the last row: the current point
+        st_fp = np.empty((MAX_STACK + 1, nl))
         ct = np.empty(nl)
         cf = np.empty(nl)
         cfp = np.empty(nl)
@@ -464,8 +463,8 @@ def render_buckets(buckets, nbx, B, W, H, offsets, ids, seg, boxes2d, cam, n, si
                 if i >= W or j >= H or status != OK:
                     continue
                 nr = render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, strict,
-                                bisect, cut_support, keep_roots, shade, scratch, hprim, hrec, order, bps, sarr, cur_f,
-                                cur_fp, st_t, st_f, st_fp, ct, cf, cfp, rgb, roots[q, used:], cap - used,
+                                bisect, cut_support, keep_roots, shade, scratch, hprim, hrec, order, bps, sarr,
+                                st_t, st_f, st_fp, ct, cf, cfp, rgb, roots[q, used:], cap - used,
                                 out4, counts)
                 if nr < 0:
                     status = ROOTS_FULL

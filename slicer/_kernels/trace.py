@@ -94,7 +94,7 @@ def _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, h
         g = ids[r]
         if px < boxes[g, 0] or px > boxes[g, 3] or py < boxes[g, 1] or py > boxes[g, 4]:
             continue
-        if ray_support(seg, ids[r], px, py, 0.0, 0.0, 0.0, 1.0, n, sigma, norm, kmax, hrec[nh]):
+        if ray_support(seg, ids[r], px, py, 0.0, 0.0, 0.0, 1.0, n, sigma, norm, kmax, hrec, nh):
             if hrec[nh, H_TOUT] > zlo and hrec[nh, H_TIN] < zhi:
                 hprim[nh] = ids[r]
                 nh += 1
@@ -119,7 +119,7 @@ def _cluster_field(seg, hprim, hrec, order, a, b, px, py, z, m, inv_s2, norm, sc
 
 @kernel
 def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict, cut_support,
-                       scratch, hprim, hrec, order, bps, sarr, cur_f, cur_fp, st_f, st_fp,
+                       scratch, hprim, hrec, order, bps, sarr, st_f, st_fp,
                        st_kind, st_t, st_k0, st_k1, ct, cf, cfp, rk0, rk1, cap, spans, span_tol, cz, xcap):
     """Classify the K voxel centres of one ray (interval method).
 
@@ -146,6 +146,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     inv_s2 = 1.0 / (sigma * sigma)
     zlo = z0 - 0.5 * h
     zhi = z0 + (K - 0.5) * h
+    cur = st_f.shape[0] - 1     # row of the values at the current point (stack slots below it)
     nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
     for r in range(nh):
         ct[r] = math.nan
@@ -202,9 +203,9 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     # the primitives' bounds on the whole ray already exclude 1
                     continue
                 fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ta, m, inv_s2,
-                                       norm, scratch, cur_f, cur_fp, ct, cf, cfp)
+                                       norm, scratch, st_f, st_fp, cur, ct, cf, cfp)
                 _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, tb, m, inv_s2,
-                                    norm, scratch, st_f[0], st_fp[0], ct, cf, cfp)
+                                    norm, scratch, st_f, st_fp, 0, ct, cf, cfp)
                 nev += ne1 + ne2
                 if spans and (fcur >= 1.0) != inside:
                     # only after a skipped stretch (below the grid): enter here
@@ -234,7 +235,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     if q1 < q0 and not spans:
                         done = True
                     else:
-                        lo, hi, mono = piece_bounds(hrec, sarr, ns, cur_f, cur_fp, st_f[p], st_fp[p],
+                        lo, hi, mono = piece_bounds(hrec, sarr, ns, st_f, st_fp, cur, p,
                                                      tcur, e_t, strict)
                         pad = 1e-10 * (1.0 + abs(hi))
                         if lo > 1.0 + pad:
@@ -244,7 +245,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             done = True
                         elif q1 < q0:
                             # spans: no centre left; refine the crossing(s) to span_tol
-                            fe, dcur, de = piece_ends(cur_fp, st_f[p], st_fp[p], ns)
+                            fe, dcur, de = piece_ends(st_f, st_fp, cur, p, ns)
                             if (e_t - tcur <= span_tol or e_t <= zlo or tcur >= zhi
                                     or (abs(fcur - 1.0) <= SURFACE_BAND and abs(fe - 1.0) <= SURFACE_BAND)):
                                 # narrow enough, outside the grid, or F within rounding of 1 at
@@ -263,7 +264,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                                         ts = tr - 0.5 * span_tol
                                     ts = min(max(ts, tcur + 0.125 * w), e_t - 0.125 * w)
                                 fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ts,
-                                                     m, inv_s2, norm, scratch, st_f[p + 1], st_fp[p + 1],
+                                                     m, inv_s2, norm, scratch, st_f, st_fp, p + 1,
                                                      ct, cf, cfp)
                                 nev += ne1
                                 st_kind[p + 1] = 0
@@ -288,7 +289,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             fe += st_f[p, s]
                         if spans and (fe >= 1.0) != inside:
                             # one crossing (an odd number) in (tcur, e_t): place it
-                            fe, dcur, de = piece_ends(cur_fp, st_f[p], st_fp[p], ns)
+                            fe, dcur, de = piece_ends(st_f, st_fp, cur, p, ns)
                             tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
                             if not (tr > tcur and tr < e_t):
                                 tr = 0.5 * (tcur + e_t)
@@ -298,8 +299,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             nx += 1
                             inside = not inside
                         for s in range(ns):
-                            cur_f[s] = st_f[p, s]
-                            cur_fp[s] = st_fp[p, s]
+                            st_f[cur, s] = st_f[p, s]
+                            st_fp[cur, s] = st_fp[p, s]
                         fcur = fe
                         tcur = e_t
                         continue
@@ -308,7 +309,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     # Hermite estimate of the crossing; elsewhere at the middle centre
                     km = (q0 + q1) // 2
                     if mono != 0 and q1 > q0 and sp < DEEP_CENTRES:
-                        fe, dcur, de = piece_ends(cur_fp, st_f[p], st_fp[p], ns)
+                        fe, dcur, de = piece_ends(st_f, st_fp, cur, p, ns)
                         if (fcur - 1.0) * (fe - 1.0) < 0.0:
                             tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
                             kr = int(math.floor((tr - z0) / h + 0.5))
@@ -320,7 +321,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     # right part keeps slot p (its right-end data are already there)
                     st_k0[p] = km + 1
                     fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, zm, m, inv_s2,
-                                         norm, scratch, st_f[p + 2], st_fp[p + 2], ct, cf, cfp)
+                                         norm, scratch, st_f, st_fp, p + 2, ct, cf, cfp)
                     nev += ne1
                     st_kind[p + 1] = 1
                     st_k0[p + 1] = km
@@ -413,7 +414,7 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
             for c in range(a, b):
                 r = order[c]
                 if hrec[r, H_TIN] < t + s and hrec[r, H_TOUT] > t:
-                    lam += lipschitz(hrec[r], t, t + s)
+                    lam += lipschitz(hrec, r, t, t + s)
             step = abs(f - 1.0) / lam if lam > 0.0 else math.inf
             if step > s:
                 step = s
@@ -499,10 +500,8 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
         order = np.empty(nl, dtype=np.int64)
         bps = np.empty(3 * nl + 4)
         sarr = np.empty(nl, dtype=np.int64)
-        cur_f = np.empty(nl)
-        cur_fp = np.empty(nl)
-        st_f = np.empty((MAX_STACK, nl))
-        st_fp = np.empty((MAX_STACK, nl))
+        st_f = np.empty((MAX_STACK + 1, nl))    # the last row: the current point
+        st_fp = np.empty((MAX_STACK + 1, nl))
         st_kind = np.empty(MAX_STACK, dtype=np.int64)
         st_t = np.empty(MAX_STACK)
         st_k0 = np.empty(MAX_STACK, dtype=np.int64)
@@ -533,7 +532,7 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                 if method == 0:
                     nr, ne, nx = trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
                                                     kmax, strict, cut_support, scratch, hprim, hrec, order, bps,
-                                                    sarr, cur_f, cur_fp, st_f, st_fp, st_kind, st_t, st_k0,
+                                                    sarr, st_f, st_fp, st_kind, st_t, st_k0,
                                                     st_k1, ct, cf, cfp, rk0, rk1, room, spans, span_tol,
                                                     cross_z[q, xused:], xcap - xused)
                 elif method == 1:
