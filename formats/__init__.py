@@ -11,6 +11,7 @@ from .base import StackWriter, atomic_dir
 from .cli import CliAsciiWriter, CliShortWriter, CliWriter
 from .contour_base import ContourWriter
 from .goo import GooWriter
+from .nanodlp import NanoDlpWriter
 from .png_stack import PngStackWriter
 from .sl1 import Sl1sWriter, Sl1Writer
 from .svg import SvgWriter
@@ -25,6 +26,7 @@ WRITERS: dict[str, type[StackWriter]] = {
     "sl1": Sl1Writer,
     "sl1s": Sl1sWriter,
     "goo": GooWriter,
+    "nanodlp": NanoDlpWriter,
     # contour formats (ContourWriter: write_layer(k, z, polygons))
     "cli": CliWriter,
     "cli-ascii": CliAsciiWriter,
@@ -34,7 +36,7 @@ WRITERS: dict[str, type[StackWriter]] = {
 }
 
 #: output suffix -> format name (a path without a known suffix is a PNG folder)
-SUFFIXES: dict[str, str] = {".zip": "zip", ".sl1": "sl1", ".sl1s": "sl1s", ".goo": "goo",
+SUFFIXES: dict[str, str] = {".zip": "zip", ".sl1": "sl1", ".sl1s": "sl1s", ".goo": "goo", ".nanodlp": "nanodlp",
                             ".cli": "cli", ".3mf": "3mf", ".svg": "svg"}
 
 

@@ -1,7 +1,7 @@
 """Shared fixtures.
 
 ``checker``: the Rust checker in ``tests/readers`` (our cargo project around
-the ``colain`` and ``goo`` crates), built once per session with
+the ``colain``, ``goo`` and ``msla_format`` crates), built once per session with
 ``cargo build --release --locked``; tests that use it skip, naming the
 reason, where cargo is missing.
 """

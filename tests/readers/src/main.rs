@@ -3,21 +3,24 @@
 //! ```text
 //! skelslice-readers cli FILE   # binary CLI, parsed by the `colain` crate
 //! skelslice-readers goo FILE   # Elegoo GOO, parsed by the `goo` crate
+//! skelslice-readers nanodlp FILE  # NanoDLP zip, parsed by `msla_format` (GPL-3.0)
 //! ```
 //!
 //! Each subcommand prints one JSON object on stdout and exits 0, or prints
 //! `{"error": "..."}` and exits 1 when the third-party parser rejects the
-//! file (or panics on it: both crates index without bounds checks of their
-//! own, so a truncated file panics; the panic is caught and reported).
+//! file (or panics on it: `colain` and `goo` index without bounds checks of
+//! their own, and `msla_format`'s NanoDLP layer decoder unwraps the PNG
+//! decode, so a truncated file panics; the panic is caught and reported).
 
 mod cli;
 mod goo_check;
 mod json;
+mod nanodlp_check;
 
 use std::process::ExitCode;
 
 fn usage() -> ExitCode {
-    eprintln!("usage: skelslice-readers (cli|goo) FILE");
+    eprintln!("usage: skelslice-readers (cli|goo|nanodlp) FILE");
     ExitCode::from(2)
 }
 
@@ -39,6 +42,7 @@ fn main() -> ExitCode {
     let result = std::panic::catch_unwind(move || match which.as_str() {
         "cli" => Some(cli::report(&data)),
         "goo" => Some(goo_check::report(&data)),
+        "nanodlp" => Some(nanodlp_check::report(&data)),
         _ => None,
     });
     match result {
