@@ -413,7 +413,7 @@ def test_python_m_slicer_writes_sl1s(ell, tmp_path):
         assert z.testzip() is None and "config.ini" in z.namelist()
 
 
-@pytest.mark.parametrize("ext", ["sl1s", "goo", "zip"])
+@pytest.mark.parametrize("ext", ["sl1s", "goo", "zip", "nanodlp"])
 def test_killed_process_leaves_no_output(tmp_path, ext):
     """SIGKILL while layers are written: nothing appears at the target."""
     scene = tmp_path / "tall.json"

@@ -16,11 +16,9 @@ from __future__ import annotations
 
 import json
 import math
-import signal
 import struct
 import subprocess
 import sys
-import time
 import zipfile
 from collections import deque
 
@@ -32,7 +30,6 @@ from PIL import Image
 
 from formats.nanodlp import NanoDlpWriter, island_sizes, layer_info, pack_rgb, unpack_rgb
 from formats.printers import PRINTERS
-from slicer import Skeleton
 from slicer.errors import OutputError
 from slicer.grid import SliceGrid
 from test_formats_images import ell, run  # noqa: F401  (the chiral test model, CliRunner helper)
@@ -371,32 +368,6 @@ def test_failure_mid_stack_leaves_nothing(tmp_path):
     with pytest.raises(OutputError, match="1 of 3 layers"):
         w.close()
     assert list(tmp_path.iterdir()) == []
-
-
-def test_killed_process_leaves_no_output(tmp_path):
-    """SIGKILL while layers are written: nothing appears at the target."""
-    scene = tmp_path / "tall.json"
-    n = 30                                                  # a 60 mm post: 3000 layers of 0.02 mm
-    Skeleton([[0, 0, 2.0 * i] for i in range(n + 1)], [[i, i + 1] for i in range(n)], [[0.5, 0.5]] * n).save(scene)
-    out = tmp_path / "out.nanodlp"
-    proc = subprocess.Popen([sys.executable, "-m", "slicer", "slice", str(scene), "-o", str(out), "-q",
-                             "--layer-height", "0.02", "--printer", "prusa-sl1s"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    deadline = time.time() + 300
-    tmp = None
-    while time.time() < deadline and proc.poll() is None:
-        tmps = [p for p in tmp_path.iterdir() if p.name.startswith(f".{out.name}.tmp-")]
-        if tmps and tmps[0].stat().st_size > 50_000:
-            tmp = tmps[0]
-            break
-        time.sleep(0.05)
-    if proc.poll() is not None:
-        pytest.skip("the job finished before it could be interrupted")
-    assert tmp is not None, "no temporary file appeared"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert not out.exists()
-    assert [p.name for p in tmp_path.iterdir() if not p.name.startswith(".")] == ["tall.json"]
 
 
 def test_same_bytes_whatever_the_thread_count(ell, tmp_path):
