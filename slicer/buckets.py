@@ -92,4 +92,38 @@ def build_buckets(skel: Skeleton, grid: SliceGrid, size: int = 64) -> Buckets:
     return Buckets(B, nbx, nby, offsets, ids, table, np.ascontiguousarray(np.hstack([lo, hi])))
 
 
-__all__ = ["Buckets", "build_buckets"]
+def thread_order(todo: np.ndarray, cost: np.ndarray, nthreads: int) -> np.ndarray:
+    """Order work items so that every thread schedule shares them evenly.
+
+    A ``prange`` loop is split into ``nthreads`` contiguous blocks by a
+    static schedule (Numba's OpenMP layer ignores ``parallel_chunksize``),
+    or handed out one item at a time by a dynamic one. The items are sorted
+    by decreasing cost and dealt to the blocks in a snake (0, 1, ..., T-1,
+    T-1, ..., 0, 0, 1, ...): the blocks then hold nearly equal total cost
+    and equal counts, and each block starts with its biggest items.
+
+    Parameters
+    ----------
+    todo : (k,) int64
+        Item (bucket) indices.
+    cost : (k,) array
+        Estimated cost of each item (e.g. its segment count).
+    nthreads : int
+
+    Returns
+    -------
+    (k,) int64
+        ``todo`` reordered.
+    """
+    todo = np.asarray(todo, dtype=np.int64)
+    order = todo[np.argsort(-np.asarray(cost), kind="stable")]
+    T = int(nthreads)
+    if T <= 1 or len(order) <= T:
+        return order
+    pos = np.arange(len(order))
+    row, col = np.divmod(pos, T)
+    block = np.where(row % 2 == 0, col, T - 1 - col)
+    return order[np.argsort(block, kind="stable")]
+
+
+__all__ = ["Buckets", "build_buckets", "thread_order"]

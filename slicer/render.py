@@ -480,22 +480,28 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
     kmax = kprime_max(n, sigma, norm)
     shade = _shade_array(cam, opacity, max_opacity, opaque)
     todo = bk.nonempty()
-    todo = todo[np.argsort(-np.diff(bk.offsets)[todo], kind="stable")]
     rgba = np.zeros((H, W, 4))
     count = np.zeros((H, W), np.int64)
     tot = np.zeros(NSTAT, np.int64)
     parts = []   # (bucket, per-ray counts, roots)
     t0 = time.perf_counter()
     with numba_threads(threads) as nthreads:
+        import numba
+
+        from .buckets import thread_order
+
+        todo = thread_order(todo, np.diff(bk.offsets)[todo], nthreads)
         pending, cap = todo, (B * B * 16 if keep_roots else 1)
         while len(pending):
             nb = len(pending)
             ray_nroot = np.zeros((nb, B * B), np.int64)
             roots = np.zeros((nb, cap))
             stats = np.zeros((nb, NSTAT), np.int64)
-            render_buckets(pending, bk.nbx, B, W, H, bk.offsets, bk.ids, bk.table, bk.boxes, cam.array,
-                           n, sigma, norm, kmax, tol, strict, bisection, cut_support, keep_roots, shade, cap,
-                           rgba, count, ray_nroot, roots, stats)
+            # dynamic schedules hand out one bucket at a time (thread_order covers static ones)
+            with numba.parallel_chunksize(1):
+                render_buckets(pending, bk.nbx, B, W, H, bk.offsets, bk.ids, bk.table, bk.boxes, cam.array,
+                               n, sigma, norm, kmax, tol, strict, bisection, cut_support, keep_roots, shade,
+                               cap, rgba, count, ray_nroot, roots, stats)
             full = stats[:, ST_STATUS] == ROOTS_FULL
             done = ~full
             tot += stats[done].sum(axis=0)

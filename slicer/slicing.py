@@ -14,7 +14,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .buckets import Buckets, build_buckets
+from .buckets import Buckets, build_buckets, thread_order
 from .errors import GridError
 from .grid import SliceGrid, make_grid
 from .skeleton import Skeleton
@@ -210,7 +210,7 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
     n, sigma, norm = skel.degree, skel.sigma, skel.normalisation
     kmax = kprime_max(n, sigma, norm)
     todo = bk.nonempty()
-    # biggest buckets first: with chunk size 1 the threads share the load evenly
+    # biggest buckets first; within a launch, thread_order balances static schedules too
     todo = todo[np.argsort(-np.diff(bk.offsets)[todo], kind="stable")]
     ly, lx = np.divmod(np.arange(B * B), B)   # local row/column of each ray in a bucket
     pix_parts, k0_parts, k1_parts = [], [], []
@@ -220,8 +220,9 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
     with numba_threads(threads) as nthreads:
         import numba
 
+        sizes = np.diff(bk.offsets)
         for s in range(0, len(todo), batch):
-            chunk = todo[s:s + batch]
+            chunk = thread_order(todo[s:s + batch], sizes[todo[s:s + batch]], nthreads)
             cap = B * B * 4
             results = _run_batch(trace_buckets, METHODS[method], chunk, bk, grid, n, sigma, norm,
                                  kmax, strict, cut_support, cap, numba, RUNS_FULL, spans, span_tol)

@@ -259,3 +259,27 @@ def test_runs_stay_inside_a_grid_that_crops_the_model():
     for method in sorted(METHODS):
         res, _ = assert_exact(skel, grid, method)
         assert res.k1.max() <= grid.layers and res.k0.min() >= 0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.integers(0, 500), min_size=0, max_size=80), st.integers(1, 6))
+def test_thread_order_balances_static_blocks(costs, T):
+    """Any static split into T contiguous blocks (as Numba's OpenMP layer
+    schedules a prange) gets near-equal shares: no block exceeds the mean by
+    more than the largest item; the order is a permutation."""
+    from slicer.buckets import thread_order
+
+    costs = np.array(costs, dtype=np.int64)
+    todo = np.arange(100, 100 + len(costs), dtype=np.int64)
+    out = thread_order(todo, costs, T)
+    assert sorted(out.tolist()) == todo.tolist()
+    if len(costs) == 0:
+        return
+    c = costs[out - 100]
+    bounds = np.linspace(0, len(c), T + 1).round().astype(int)
+    for ceil_split in (False, True):
+        if ceil_split:    # blocks of ceil(n / T) items, the last one shorter
+            k = -(-len(c) // T)
+            bounds = np.minimum(np.arange(T + 1) * k, len(c))
+        shares = [int(c[a:b].sum()) for a, b in zip(bounds[:-1], bounds[1:])]
+        assert max(shares) <= c.sum() / T + 2 * c.max() + 1e-9
