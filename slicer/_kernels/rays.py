@@ -17,9 +17,40 @@ and decrement per call, a third of the run time in this inner loop.
 """
 from __future__ import annotations
 
+import numpy as np
+
 from .._jit import kernel
-from .field import segment_eval
-from .raysupport import H_TIN, H_TOUT, lipschitz
+from .field import SCRATCH, segment_eval
+from .raysupport import H_TIN, H_TOUT, NHIT, lipschitz
+
+
+@kernel
+def walk_buffers(nl, stack):
+    """Work arrays of one ray walk over a bucket list of ``nl`` segments,
+    allocated once per bucket and reused by its rays.
+
+    Returns
+    -------
+    scratch : (SCRATCH,) float64
+        :func:`slicer._kernels.field.segment_eval`'s work array.
+    hprim, order, sarr : (nl,) int64
+        Segment of each hit, hits sorted by entry, active hits of a piece.
+    hrec : (nl, NHIT) float64
+        Hit records.
+    bps : (3 nl + 4,) float64
+        Breakpoints of a cluster.
+    st_f, st_fp : (stack + 1, nl) float64
+        Per-primitive f and f' at the ends of stacked pieces; the last row
+        holds the current point.
+    st_t : (stack,) float64
+        Right end of each stacked piece.
+    ct, cf, cfp : (nl,) float64
+        Each hit's last evaluation (t, f, f'), see :func:`eval_along`.
+    """
+    return (np.empty(SCRATCH), np.empty(nl, dtype=np.int64), np.empty((nl, NHIT)),
+            np.empty(nl, dtype=np.int64), np.empty(3 * nl + 4), np.empty(nl, dtype=np.int64),
+            np.empty((stack + 1, nl)), np.empty((stack + 1, nl)), np.empty(stack),
+            np.empty(nl), np.empty(nl), np.empty(nl))
 
 
 @kernel

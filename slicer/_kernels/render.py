@@ -46,9 +46,10 @@ import numpy as np
 from numba import prange
 
 from .._jit import kernel, parallel_kernel
-from .field import SCRATCH, segment_eval
-from .rays import eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits, sort_unique
-from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, ray_support
+from .field import segment_eval
+from .rays import (eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits, sort_unique,
+                   walk_buffers)
+from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, ray_support
 
 OK = 0
 ROOTS_FULL = 1
@@ -437,18 +438,7 @@ def render_buckets(buckets, nbx, B, W, H, offsets, ids, seg, boxes2d, cam, n, si
         i0 = offsets[bidx]
         i1 = offsets[bidx + 1]
         nl = max(i1 - i0, 1)
-        scratch = np.empty(SCRATCH)
-        hprim = np.empty(nl, dtype=np.int64)
-        hrec = np.empty((nl, NHIT))
-        order = np.empty(nl, dtype=np.int64)
-        bps = np.empty(3 * nl + 2)
-        sarr = np.empty(nl, dtype=np.int64)
-        st_t = np.empty(MAX_STACK)
-        st_f = np.empty((MAX_STACK + 1, nl))    # the last row: the current point
-        st_fp = np.empty((MAX_STACK + 1, nl))
-        ct = np.empty(nl)
-        cf = np.empty(nl)
-        cfp = np.empty(nl)
+        scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = walk_buffers(nl, MAX_STACK)
         rgb = np.empty(3)
         out4 = np.empty(4)
         counts = np.zeros(5, dtype=np.int64)

@@ -29,9 +29,10 @@ import numpy as np
 from numba import prange
 
 from .._jit import kernel, parallel_kernel
-from .field import SCRATCH, segment_eval
-from .rays import eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits, sort_unique
-from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz, ray_support
+from .field import segment_eval
+from .rays import (eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits, sort_unique,
+                   walk_buffers)
+from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, lipschitz, ray_support
 
 OK = 0
 RUNS_FULL = 1
@@ -494,22 +495,11 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
         i0 = bucket_off[bidx]
         i1 = bucket_off[bidx + 1]
         nl = max(i1 - i0, 1)
-        scratch = np.empty(SCRATCH)
-        hprim = np.empty(nl, dtype=np.int64)
-        hrec = np.empty((nl, NHIT))
-        order = np.empty(nl, dtype=np.int64)
-        bps = np.empty(3 * nl + 4)
-        sarr = np.empty(nl, dtype=np.int64)
-        st_f = np.empty((MAX_STACK + 1, nl))    # the last row: the current point
-        st_fp = np.empty((MAX_STACK + 1, nl))
+        scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = walk_buffers(nl, MAX_STACK)
         st_kind = np.empty(MAX_STACK, dtype=np.int64)
-        st_t = np.empty(MAX_STACK)
         st_k0 = np.empty(MAX_STACK, dtype=np.int64)
         st_k1 = np.empty(MAX_STACK, dtype=np.int64)
         active = np.empty(nl, dtype=np.int64)
-        ct = np.empty(nl)
-        cf = np.empty(nl)
-        cfp = np.empty(nl)
         used = 0
         xused = 0
         nev_tot = 0
