@@ -7,7 +7,7 @@ stack), then ``close`` (publishes the output atomically) or ``abort``
 """
 from __future__ import annotations
 
-from .base import StackWriter, atomic_dir
+from .base import AtomicDir, AtomicFile, StackWriter
 from .cli import CliAsciiWriter, CliShortWriter, CliWriter
 from .contour_base import ContourWriter
 from .goo import GooWriter
@@ -61,4 +61,4 @@ def writer_for(name: str | None, path, default: str = "png") -> type[StackWriter
         raise OutputError(f"unknown output format {name!r}; choose one of {sorted(WRITERS)}") from None
 
 
-__all__ = ["WRITERS", "SUFFIXES", "writer_for", "format_for", "StackWriter", "ContourWriter", "atomic_dir"]
+__all__ = ["WRITERS", "SUFFIXES", "writer_for", "format_for", "StackWriter", "ContourWriter", "AtomicDir", "AtomicFile"]

@@ -1,14 +1,14 @@
-"""Writer protocol and atomic publication helpers."""
+"""Writer protocol and the helpers writers share (PNG bytes, zip entries, build time).
+
+Atomic publication is :mod:`slicer.atomic` (one implementation for every output)."""
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from slicer.errors import OutputError
+from slicer.atomic import AtomicDir, AtomicFile, check_destination
 
 
 class StackWriter:
@@ -94,45 +94,4 @@ def zip_entry(name: str, compress: bool):
     return info
 
 
-def check_destination(path: Path, force: bool) -> None:
-    """Refuse to overwrite an existing output unless ``force``; check the parent exists."""
-    if path.exists() and not force:
-        raise OutputError(f"{path}: already exists (use --force to replace it)")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError(f"{path}: the folder {parent} does not exist")
-
-
-class atomic_dir:
-    """A temporary folder beside ``path`` that becomes ``path`` on :meth:`publish`.
-
-    Until then nothing exists at ``path``; :meth:`discard` removes the
-    temporary folder. A crash leaves at most a hidden ``.<name>.tmp-*`` folder,
-    never a half-written output at ``path``.
-    """
-
-    def __init__(self, path: Path):
-        self.path = Path(path)
-        parent = self.path.parent if str(self.path.parent) else Path(".")
-        try:
-            self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.tmp-", dir=parent))
-        except OSError as exc:
-            raise OutputError(f"{self.path}: cannot create a temporary folder ({exc.strerror})") from None
-
-    def publish(self, force: bool) -> None:
-        if self.path.exists():
-            if not force:
-                self.discard()
-                raise OutputError(f"{self.path}: already exists (use --force to replace it)")
-            old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
-            os.replace(self.path, old)
-            os.replace(self.tmp, self.path)
-            if old.is_dir():
-                shutil.rmtree(old, ignore_errors=True)
-            else:
-                old.unlink(missing_ok=True)
-        else:
-            os.replace(self.tmp, self.path)
-
-    def discard(self) -> None:
-        shutil.rmtree(self.tmp, ignore_errors=True)
+__all__ = ["StackWriter", "png_bytes", "build_time", "zip_entry", "check_destination", "AtomicFile", "AtomicDir"]

@@ -26,15 +26,13 @@ caller passed.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
-from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 import shapely
 from shapely.geometry.polygon import orient
 
+from slicer.atomic import AtomicFile
 from slicer.errors import OutputError
 
 from .base import StackWriter
@@ -238,54 +236,4 @@ def rings(poly: shapely.Polygon) -> list[tuple[np.ndarray, bool]]:
     return out
 
 
-class AtomicFile:
-    """A binary file written beside ``path`` that becomes ``path`` on :meth:`publish`.
-
-    ``fh`` is the open temporary file (``.NAME.tmp-XXXX`` in the target's
-    folder, so :func:`os.replace` is atomic). :meth:`publish` flushes, fsyncs
-    and renames it over ``path`` (replacing an existing file only with
-    ``force``); :meth:`discard` closes and deletes it. Both are idempotent.
-    """
-
-    def __init__(self, path: Path):
-        self.path = Path(path)
-        parent = self.path.parent if str(self.path.parent) else Path(".")
-        try:
-            fd, name = tempfile.mkstemp(prefix=f".{self.path.name}.tmp-", dir=parent)
-        except OSError as exc:
-            raise OutputError(f"{self.path}: cannot create a temporary file ({exc.strerror})") from None
-        self.tmp = Path(name)
-        self.fh = os.fdopen(fd, "w+b")
-        self._done = False
-
-    def publish(self, force: bool) -> None:
-        if self._done:
-            return
-        self.fh.flush()
-        os.fsync(self.fh.fileno())
-        self.fh.close()
-        if self.path.exists() and not force:
-            self.discard()
-            raise OutputError(f"{self.path}: already exists (use --force to replace it)")
-        if self.path.is_dir():
-            self.discard()
-            raise OutputError(f"{self.path}: is a folder; a {self.path.suffix or 'contour'} output is a file")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(self.tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the usual permissions
-        os.replace(self.tmp, self.path)
-        self._done = True
-
-    def discard(self) -> None:
-        if self._done:
-            return
-        self._done = True
-        try:
-            self.fh.close()
-        except OSError:
-            pass        # e.g. ENOSPC flushing a file that is being thrown away
-        finally:
-            self.tmp.unlink(missing_ok=True)
-
-
-__all__ = ["ContourWriter", "AtomicFile", "oriented_polygons", "rings"]
+__all__ = ["ContourWriter", "oriented_polygons", "rings"]

@@ -29,10 +29,10 @@ import struct
 
 import numpy as np
 
+from slicer.atomic import AtomicFile
 from slicer.errors import OutputError
 
 from .base import StackWriter, build_time
-from .contour_base import AtomicFile
 from .printers import plate_printer
 from .thumbnails import TopView, rgb565
 

@@ -21,14 +21,13 @@ Voxel (i, j, k) has its centre at ``(x0 + i px, y0 - j py, z0 + k h)``.
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
-from PIL import Image
 
+from slicer.atomic import AtomicDir
 from slicer.errors import OutputError
 
-from .base import StackWriter, atomic_dir
+from .base import StackWriter, png_bytes
 
 LAYER_NAME = "layer_{:05d}.png"
 
@@ -55,7 +54,7 @@ class PngStackWriter(StackWriter):
 
     def __init__(self, path, grid, meta=None, force=False, settings=None):
         super().__init__(path, grid, meta, force, settings)
-        self._dir = atomic_dir(self.path)
+        self._dir = AtomicDir(self.path)
         self._files: list[str] = []
 
     def write_layer(self, k: int, image: np.ndarray) -> None:
@@ -63,11 +62,11 @@ class PngStackWriter(StackWriter):
             raise ValueError(f"layers must be written in order: expected {len(self._files)}, got {k}")
         name = LAYER_NAME.format(k)
         try:
-            Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8)).save(
-                self._dir.tmp / name, format="PNG", compress_level=3)
+            data = png_bytes(image)
         except OSError as exc:
             self.abort()
-            raise OutputError(f"{self.path}: cannot write {name} ({exc})") from None
+            raise OutputError(f"{self.path}: cannot encode {name} ({exc.strerror or exc})") from None
+        self._dir.write_file(name, data)
         self._files.append(name)
 
     def close(self) -> None:
@@ -76,16 +75,8 @@ class PngStackWriter(StackWriter):
             self.abort()
             raise OutputError(f"{self.path}: {len(self._files)} of {g.layers} layers were written")
         doc = slices_doc(g, self._files, self.meta, self.settings)
-        try:
-            with open(self._dir.tmp / "slices.json", "w") as fh:
-                json.dump(doc, fh, indent=1)
-                fh.write("\n")
-                fh.flush()
-                os.fsync(fh.fileno())
-            self._dir.publish(self.force)
-        except OSError as exc:
-            self.abort()
-            raise OutputError(f"{self.path}: cannot finish the output ({exc})") from None
+        self._dir.write_file("slices.json", (json.dumps(doc, indent=1) + "\n").encode())
+        self._dir.publish(self.force)
 
     def abort(self) -> None:
         self._dir.discard()

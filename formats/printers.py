@@ -418,7 +418,7 @@ def resolve_job(fmt, out, printer=None, pixel_size=None, pixel_size_y=None, laye
         Unknown format.
     """
     from slicer.antialias import check_aa
-    from slicer.errors import positive_number
+    from slicer.checks import positive_number
 
     from . import format_for, writer_for
 

@@ -17,10 +17,10 @@ import zipfile
 
 import numpy as np
 
+from slicer.atomic import AtomicFile
 from slicer.errors import OutputError
 
 from .base import StackWriter, png_bytes, zip_entry
-from .contour_base import AtomicFile
 from .png_stack import LAYER_NAME, slices_doc
 
 

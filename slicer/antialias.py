@@ -33,7 +33,8 @@ from typing import Iterator
 
 import numpy as np
 
-from .errors import GridError, positive_number
+from .checks import positive_number
+from .errors import GridError
 from .grid import SliceGrid
 
 

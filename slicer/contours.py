@@ -31,7 +31,10 @@ from typing import Iterator
 
 import numpy as np
 
-from .errors import GridError, positive_number
+from ._kernels.launch import serial
+from .atomic import AtomicFile, check_destination
+from .checks import positive_number
+from .errors import GridError
 from .field import evaluate
 from .skeleton import Skeleton
 from .slicing import SliceResult
@@ -97,14 +100,8 @@ def _field(skel: Skeleton, points: np.ndarray, gradient: bool = False):
     """:func:`slicer.field.evaluate`, serial for small batches (same values)."""
     if points.shape[0] >= SERIAL_BATCH:
         return evaluate(skel, points, gradient)
-    import numba
-
-    old = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
+    with serial():
         return evaluate(skel, points, gradient)
-    finally:
-        numba.set_num_threads(old)
 
 
 def _check_tol(tol) -> float:
@@ -676,9 +673,6 @@ def write_contours(skel: Skeleton, result: SliceResult, path, tol: float = 1e-3,
     import time
     from pathlib import Path
 
-    from formats.base import check_destination
-    from formats.contour_base import AtomicFile
-
     tol = _check_tol(tol)
     path = Path(path)
     check_destination(path, force)
@@ -687,7 +681,7 @@ def write_contours(skel: Skeleton, result: SliceResult, path, tol: float = 1e-3,
     head = {"generator": "skelslice", "units": "mm", "tolerance": tol, "grid": grid.to_dict(),
             **(meta or {})}
     t0 = time.perf_counter()
-    out = AtomicFile(path)
+    out = AtomicFile(path)    # published after the last layer
     nv = 0
     n = 0
     try:

@@ -1,9 +1,21 @@
 """Exception hierarchy.
 
-All errors raised by skelslice derive from :class:`SkelsliceError`; input
-problems are also :class:`ValueError` so generic callers can catch them.
-The CLI turns any :class:`SkelsliceError` into a one-line message and exit
-status 2.
+All errors raised by skelslice derive from :class:`SkelsliceError`; the CLI
+turns any of them into a one-line message and exit status 2, never a
+traceback. Input problems are also :class:`ValueError` and output problems
+:class:`OSError`, so generic callers can catch them.
+
+::
+
+    SkelsliceError
+    ├── SceneError (ValueError)            a scene file or array is malformed
+    ├── UsageError (ValueError)            a request cannot be carried out as asked
+    │   ├── OptionError                    an option value is invalid or options conflict
+    │   │   └── ConfigError                a --config file is unreadable or has bad keys
+    │   ├── GridError                      the slicing grid or job does not work out
+    │   └── FormatError                    the output format cannot hold the job
+    ├── MissingDependencyError (ImportError)  an optional package is not installed
+    └── OutputError (OSError)              an output cannot be written
 """
 from __future__ import annotations
 
@@ -29,31 +41,65 @@ class SceneError(SkelsliceError, ValueError):
         super().__init__(f"{source}: {message}" if source else message)
 
 
-class GridError(SkelsliceError, ValueError):
-    """A slicing grid or job request is invalid (sizes, bounds, resolution)."""
+class UsageError(SkelsliceError, ValueError):
+    """A request cannot be carried out as asked (parent of option, grid and format errors)."""
+
+
+class OptionError(UsageError):
+    """An option or argument value is invalid, or options conflict (the message names them)."""
+
+
+class ConfigError(OptionError):
+    """A ``--config`` file cannot be read or has unknown keys or bad values."""
+
+
+class GridError(UsageError):
+    """A slicing grid or job request is invalid (sizes, bounds, resolution, plate fit)."""
+
+
+class FormatError(UsageError):
+    """The chosen output format cannot hold the job (resolution, exposure or layer ranges,
+    grey levels); raised before any work."""
+
+
+class MissingDependencyError(SkelsliceError, ImportError):
+    """An optional dependency is not installed.
+
+    Parameters
+    ----------
+    package : str
+        The import name that is missing.
+    extra : str
+        The skelslice extra that installs it (``pip install 'skelslice[extra]'``).
+    needed_for : str
+        What needs it, e.g. ``"3MF input"``.
+    """
+
+    def __init__(self, package: str, extra: str, needed_for: str):
+        self.package, self.extra, self.needed_for = package, extra, needed_for
+        super().__init__(f"{needed_for} needs the Python package {package!r}, which is not installed; "
+                         f"install it with: pip install 'skelslice[{extra}]'")
 
 
 class OutputError(SkelsliceError, OSError):
     """An output cannot be written (exists, unwritable, disk full)."""
 
 
-def positive_number(value, name: str, error: type[SkelsliceError]) -> float:
-    """``value`` as a finite float > 0, else ``error`` naming ``name`` and the value.
+def require(package: str, extra: str, needed_for: str):
+    """Import an optional dependency, or raise :class:`MissingDependencyError`.
 
-    Booleans are refused (``True`` is not a size).
+    Examples
+    --------
+    >>> require("json", "none", "a test").__name__
+    'json'
     """
-    import math
+    import importlib
 
-    shown = repr(value.item() if hasattr(value, "item") and not isinstance(value, (list, tuple)) else value)
-    if isinstance(value, bool) or type(value).__name__ == "bool_":
-        raise error(f"{name} must be a number > 0, got {shown}")
     try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise error(f"{name} must be a number > 0, got {shown}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise error(f"{name} must be a finite number > 0, got {shown}")
-    return v
+        return importlib.import_module(package)
+    except ImportError:
+        raise MissingDependencyError(package, extra, needed_for) from None
 
 
-__all__ = ["SkelsliceError", "SceneError", "GridError", "OutputError", "positive_number"]
+__all__ = ["SkelsliceError", "SceneError", "UsageError", "OptionError", "ConfigError", "GridError",
+           "FormatError", "MissingDependencyError", "OutputError", "require"]

@@ -6,7 +6,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .errors import GridError, positive_number
+from .checks import positive_number
+from .errors import GridError
 
 #: refuse jobs larger than this many voxels before any work starts
 MAX_VOXELS = 10**12

@@ -19,7 +19,8 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import SceneError, positive_number
+from .checks import positive_number
+from .errors import SceneError
 from .skeleton import DEFAULT_DEGREE, DEFAULT_SIGMA, Skeleton
 
 #: names accepted by :func:`generate_lattice` (combine with ``+``, e.g. ``"bcc+cubic"``)

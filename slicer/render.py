@@ -24,16 +24,13 @@ Examples
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from .buckets import Buckets
-from .errors import GridError, OutputError
+from .errors import GridError
 from .skeleton import Skeleton
 
 #: view name -> (view direction, up hint)
@@ -205,7 +202,7 @@ def make_camera(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str 
     -------
     Camera
     """
-    from .errors import positive_number
+    from .checks import positive_number
 
     W, H = _size(size)
     if view not in VIEWS:
@@ -408,7 +405,7 @@ def _shade_array(cam: Camera, opacity: float, max_opacity: float, opaque: bool) 
 
 
 def _fraction(v, name: str) -> float:
-    from .errors import positive_number
+    from .checks import positive_number
 
     x = positive_number(v, name, GridError)
     if x > 1.0:
@@ -460,8 +457,8 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
     from ._kernels.raysupport import kprime_max
     from ._kernels.render import NSTAT, ROOTS_FULL, ST_CUT, ST_EV_ISOLATE, ST_EV_REFINE, ST_EV_SHADE, \
         ST_EV_SPLIT, ST_ROOTS, ST_STATUS, render_buckets
-    from .errors import positive_number
-    from .slicing import numba_threads
+    from .checks import positive_number
+    from ._kernels.launch import numba_threads
 
     cam = camera if isinstance(camera, Camera) else make_camera(skel, size, view, camera, fov, eye, target)
     opacity = _fraction(opacity, "opacity")
@@ -537,88 +534,5 @@ def _gather_roots(parts, bk: ScreenBuckets, W: int, H: int) -> np.ndarray:
     return vals[np.argsort(pix, kind="stable")]
 
 
-def _atomic_file(path: Path, force: bool, write) -> None:
-    """Write a file through ``write(fileobj)`` into a temporary file beside
-    ``path``, then move it into place: ``path`` is never half-written."""
-    parent = path.parent if str(path.parent) else Path(".")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp-", dir=parent)
-    except OSError as exc:
-        raise OutputError(f"{path}: cannot create a temporary file ({exc.strerror})") from None
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-        umask = os.umask(0o022)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes 0600; give the usual mode
-        if path.exists() and not force:
-            raise OutputError(f"{path}: already exists (use --force to replace it)")
-        os.replace(tmp, path)
-    except BaseException as exc:
-        Path(tmp).unlink(missing_ok=True)
-        if isinstance(exc, OSError) and not isinstance(exc, OutputError):
-            raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
-        raise
-
-
-def save_png(image: np.ndarray, path, force: bool = False) -> None:
-    """Write an (H, W, 3) or (H, W, 4) uint8 image as PNG, atomically."""
-    from PIL import Image
-
-    from formats.base import check_destination
-
-    path = Path(path)
-    check_destination(path, force)
-    mode = "RGBA" if image.shape[2] == 4 else "RGB"
-    _atomic_file(path, force, lambda fh: Image.fromarray(image, mode).save(fh, format="PNG", optimize=True))
-
-
-def save_roots(result: RenderResult, path, force: bool = False) -> None:
-    """Write the ``--roots-out`` arrays (:meth:`RenderResult.roots_arrays`) as ``.npz``, atomically."""
-    from formats.base import check_destination
-
-    path = Path(path)
-    check_destination(path, force)
-    arrays = result.roots_arrays()
-    _atomic_file(path, force, lambda fh: _write_npz(fh, arrays))
-
-
-def _write_npz(fh, arrays: dict) -> None:
-    """``np.savez_compressed`` with the fixed zip timestamps of
-    :func:`formats.base.zip_entry`, so equal arrays give equal bytes (the file
-    is readable by ``np.load``)."""
-    import zipfile
-
-    from formats.base import zip_entry
-
-    with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for name, a in arrays.items():
-            with zf.open(zip_entry(f"{name}.npy", True), "w", force_zip64=True) as out:
-                np.lib.format.write_array(out, np.asanyarray(a), allow_pickle=False)
-
-
-def run_render(skel: Skeleton, out, *, roots_out=None, force: bool = False, transparent: bool = False,
-               **options) -> dict:
-    """Render ``skel`` to the PNG ``out`` (and the roots to ``roots_out``).
-
-    Both destinations are checked before any work; nothing is left at them on
-    failure. ``options`` go to :func:`render`. Returns the stats dict.
-    """
-    from formats.base import check_destination
-
-    out = Path(out)
-    check_destination(out, force)
-    if roots_out is not None:
-        roots_out = Path(roots_out)
-        if roots_out.resolve() == out.resolve():
-            raise OutputError(f"{roots_out}: the roots file cannot be the image file")
-        check_destination(roots_out, force)
-    res = render(skel, keep_roots=roots_out is not None, **options)
-    save_png(res.image(transparent), out, force)
-    if roots_out is not None:
-        save_roots(res, roots_out, force)
-    return res.stats
-
-
 __all__ = ["Camera", "RenderResult", "ScreenBuckets", "VIEWS", "CAMERAS", "make_camera", "screen_boxes",
-           "screen_buckets", "render", "run_render", "save_png", "save_roots"]
+           "screen_buckets", "render"]

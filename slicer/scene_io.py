@@ -78,12 +78,12 @@ import json
 import math
 import os
 import re
-import secrets
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .atomic import write_bytes
 from .errors import OutputError, SceneError
 from .skeleton import DEFAULT_DEGREE, DEFAULT_SIGMA, Skeleton
 
@@ -196,7 +196,7 @@ def save_scene(skel: Skeleton, path) -> None:
         data = (json.dumps(skel.to_dict(), allow_nan=False, separators=(", ", ": ")) + "\n").encode()
     else:
         data = _obj_text(skel, dst).encode()
-    _write_atomic(dst, data)
+    write_bytes(dst, data, force=True)
 
 
 # ----------------------------------------------------------------------------- reading helpers
@@ -650,49 +650,6 @@ def _obj_text(skel: Skeleton, dst: str) -> str:
         out.append("v " + " ".join(_fmt(c) for c in skel.nodes[i].tolist()) + " " + _fmt(r))
     out.extend(f"l {a + 1} {b + 1}" for a, b in ends.tolist())
     return "\n".join(out) + "\n"
-
-
-# ----------------------------------------------------------------------------- atomic write
-def _write_atomic(dst: str, data: bytes) -> None:
-    directory = os.path.dirname(os.path.abspath(dst))
-    base = os.path.basename(dst)
-    tmp = None
-    try:
-        for _ in range(100):
-            candidate = os.path.join(directory, f".{base}.{secrets.token_hex(4)}.tmp")
-            try:
-                fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0),
-                             0o666)
-            except FileExistsError:
-                continue
-            tmp = candidate
-            break
-        else:  # pragma: no cover - 100 random name collisions
-            raise FileExistsError(f"could not create a temporary file in {directory}")
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, dst)
-        tmp = None
-    except OSError as exc:
-        raise OutputError(f"{dst}: cannot write the scene: {exc.strerror or exc}") from exc
-    finally:
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-    try:  # make the rename itself durable; best effort
-        dfd = os.open(directory, os.O_RDONLY)
-    except OSError:  # pragma: no cover
-        return
-    try:
-        os.fsync(dfd)
-    except OSError:  # pragma: no cover
-        pass
-    finally:
-        os.close(dfd)
 
 
 __all__ = ["load_scene", "save_scene", "FORMAT_VERSION", "UNITS", "SUFFIXES"]

@@ -7,13 +7,13 @@ the runs' ends and the layer index, so memory is O(runs) + one layer.
 """
 from __future__ import annotations
 
-import contextlib
 import time
 from dataclasses import dataclass, field
 from typing import Iterator
 
 import numpy as np
 
+from ._kernels.launch import numba_threads
 from .buckets import Buckets, build_buckets, thread_order
 from .errors import GridError
 from .grid import SliceGrid, make_grid
@@ -147,25 +147,6 @@ class SliceResult:
         for p, a, b in zip(self.pix, self.k0, self.k1):
             vol[a:b, p] = True
         return vol.reshape(g.layers, g.height, g.width)
-
-
-@contextlib.contextmanager
-def numba_threads(n: int | None):
-    """Temporarily limit Numba's thread count (``None``: leave it)."""
-    import numba
-
-    if n is None:
-        yield numba.get_num_threads()
-        return
-    n = int(n)
-    if n < 1:
-        raise GridError(f"threads must be >= 1, got {n}")
-    old = numba.get_num_threads()
-    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-    try:
-        yield numba.get_num_threads()
-    finally:
-        numba.set_num_threads(old)
 
 
 def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int = 64,
@@ -428,4 +409,4 @@ def slice_skeleton(skel: Skeleton, pixel_size: float, pixel_size_y: float | None
     return res if bounds is not None else trim(res)
 
 
-__all__ = ["SliceResult", "slice_skeleton", "trace", "trim", "METHODS", "numba_threads"]
+__all__ = ["SliceResult", "slice_skeleton", "trace", "trim", "METHODS"]

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._kernels.launch import cores
 from .errors import GridError
 from .grid import SliceGrid, make_grid
 from .skeleton import Skeleton
@@ -353,7 +354,7 @@ def plan_job(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, budget: int | 
             boxes = support_boxes(skel)
         rpc, spc, fill = sample_runs(skel, grid, opts, boxes)
         sampled = True
-        par = workers if not serial else max(1, opts.threads or _cores())
+        par = workers if not serial else max(1, opts.threads or cores())
         seconds = spc * W * H / par
     L = K
     if slab is not None:
@@ -394,12 +395,6 @@ def warm_up(opts: TraceOptions) -> None:
     s = Skeleton([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]], [[0, 1]], [[0.5, 0.5]])
     g = SliceGrid((0.25, 0.05, -1.0), (0.1, 0.1), 0.25, 1, 1, 13)
     trace(s, g, **dataclasses.replace(opts, threads=1).trace_kwargs())
-
-
-def _cores() -> int:
-    import numba
-
-    return int(numba.config.NUMBA_NUM_THREADS)
 
 
 def plan_slice(skel: Skeleton, pixel_size: float, pixel_size_y: float | None = None,

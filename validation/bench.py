@@ -63,7 +63,8 @@ def table1(models=("jellyfish", "microstructure"), layers=(512, 1024), pixels=51
     from sample_lattices import load_sample
     from slicer.grid import make_grid
     from slicer.job import write_stack
-    from slicer.slicing import numba_threads, trace
+    from slicer._kernels.launch import numba_threads
+    from slicer.slicing import trace
 
     compile_s = _warmup()
     rows = []

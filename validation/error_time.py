@@ -182,7 +182,7 @@ def sweep(model: str = "jellyfish", configs=None, quick: bool = False, repeat: i
     """Run the sweep; returns a JSON-ready dict (``ref_pixels``, ``ref_tol``: the reference's
     resolution and contour tolerance, mm)."""
     from sample_lattices import load_sample
-    from slicer.slicing import numba_threads
+    from slicer._kernels.launch import numba_threads
 
     from .bench import _warmup
 

@@ -34,7 +34,8 @@ from itertools import permutations
 import numpy as np
 
 from slicer.contours import rings_to_multipolygon, solve_crossings
-from slicer.errors import GridError, positive_number
+from slicer.checks import positive_number
+from slicer.errors import GridError
 from slicer.field import evaluate
 from slicer.skeleton import Skeleton
 

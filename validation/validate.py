@@ -19,6 +19,7 @@ metrics of :mod:`validation.metrics`. Checks:
 """
 from __future__ import annotations
 
+import io
 import json
 import time
 from pathlib import Path
@@ -75,7 +76,8 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
         ``_result`` hold the objects the report images are drawn from.
     """
     from slicer.contours import layer_contours, layer_mask
-    from slicer.errors import GridError, positive_number
+    from slicer.checks import positive_number
+    from slicer.errors import GridError
     from slicer.slicing import slice_skeleton
 
     from .bench import square_bounds
@@ -194,14 +196,14 @@ def overlay_image(mask: np.ndarray, ref_rings: list[np.ndarray], ref_raster: np.
 
 def write_report(report: dict, out, force: bool = False, images: int = 4) -> Path:
     """Write ``report.json`` and overlay PNGs of the worst layers to folder ``out``, atomically."""
-    from formats.base import atomic_dir, check_destination
+    from slicer.atomic import AtomicDir, check_destination
     from slicer.contours import layer_mask
 
     from .metrics import polygon_rings, rasterize_rings
 
     out = Path(out)
     check_destination(out, force)
-    tmp = atomic_dir(out)
+    tmp = AtomicDir(out)
     try:
         res = report["_result"]
         g = res.grid
@@ -215,13 +217,15 @@ def write_report(report: dict, out, force: bool = False, images: int = 4) -> Pat
             rings = polygon_rings(sec.polygons)
             ref_raster = rasterize_rings(rings, g.origin[:2], g.pixel_size, g.height, g.width)
             name = f"overlay_{r['k']:05d}.png"
-            overlay_image(mask, rings, ref_raster, g.origin[:2], g.pixel_size).save(tmp.tmp / name)
+            buf = io.BytesIO()
+            overlay_image(mask, rings, ref_raster, g.origin[:2], g.pixel_size).save(buf, format="PNG")
+            tmp.write_file(name, buf.getvalue())
             files.append(name)
         public = {k: v for k, v in report.items() if not k.startswith("_")}
         public["images"] = files
         public["legend"] = {"grey": "inside (ours and reference)", "red": "inside only in ours",
                             "blue": "inside only in the reference", "green": "reference outline"}
-        (tmp.tmp / "report.json").write_text(json.dumps(public, indent=1) + "\n")
+        tmp.write_file("report.json", (json.dumps(public, indent=1) + "\n").encode())
         tmp.publish(force)
     except BaseException:
         tmp.discard()

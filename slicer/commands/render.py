@@ -42,7 +42,7 @@ def command(scene, out, size, view, camera, fov, eye, target, opacity, max_opaci
     """Render SCENE to a PNG: every crossing of every ray, shaded and
     composited front to back as semi-transparent layers."""
     from slicer import load_scene
-    from slicer.render import run_render
+    from slicer.render_output import run_render
 
     skel = load_scene(scene, radius=radius)
     st = run_render(skel, out, roots_out=roots_out, force=force, transparent=transparent, size=size,
