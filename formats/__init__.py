@@ -7,6 +7,10 @@ stack), then ``close`` (publishes the output atomically) or ``abort``
 """
 from __future__ import annotations
 
+from pathlib import Path
+
+from slicer.errors import OutputError
+
 from .base import AtomicDir, AtomicFile, StackWriter
 from .cli import CliAsciiWriter, CliShortWriter, CliWriter
 from .contour_base import ContourWriter
@@ -42,8 +46,6 @@ SUFFIXES: dict[str, str] = {".zip": "zip", ".sl1": "sl1", ".sl1s": "sl1s", ".goo
 
 def format_for(name: str | None, path, default: str = "png") -> str:
     """The format name: ``name`` if given, else from ``path``'s suffix, else ``default``."""
-    from pathlib import Path
-
     if name is not None:
         return str(name).lower()
     return SUFFIXES.get(Path(path).suffix.lower(), default)
@@ -52,8 +54,6 @@ def format_for(name: str | None, path, default: str = "png") -> str:
 def writer_for(name: str | None, path, default: str = "png") -> type[StackWriter]:
     """The writer class for a format name, or inferred from ``path``'s suffix
     (``default`` when the suffix is not a known one)."""
-    from slicer.errors import OutputError
-
     name = format_for(name, path, default)
     try:
         return WRITERS[name]

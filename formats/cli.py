@@ -59,7 +59,7 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from slicer.errors import OutputError
+from slicer.errors import OptionError, OutputError, ReadError
 
 from .contour_base import ContourWriter, rings
 
@@ -97,11 +97,11 @@ class CliWriter(ContourWriter):
 
     def __init__(self, path, grid, meta=None, force=False, form: str = "long", units: float | None = None):
         if form not in DEFAULT_UNITS:
-            raise ValueError(f"CLI form must be one of {sorted(DEFAULT_UNITS)}, got {form!r}")
+            raise OptionError(f"CLI form must be one of {sorted(DEFAULT_UNITS)}, got {form!r}")
         self.form = form
         self.units = float(units if units is not None else DEFAULT_UNITS[form])
         if not (np.isfinite(self.units) and self.units > 0):
-            raise ValueError(f"CLI units must be a finite number > 0 (mm per unit), got {units!r}")
+            raise OptionError(f"CLI units must be a finite number > 0 (mm per unit), got {units!r}")
         self.dropped_rings = 0
         self._last_z_units = None
         super().__init__(path, grid, meta, force)
@@ -286,13 +286,13 @@ def read_cli(path) -> CliFile:
 
     Raises
     ------
-    ValueError
+    ReadError
         Malformed header or geometry, naming the byte offset or line.
     """
     data = Path(path).read_bytes()
     end = data.find(b"$$HEADEREND")
     if end < 0:
-        raise ValueError(f"{path}: no $$HEADEREND: not a CLI file")
+        raise ReadError(f"{path}: no $$HEADEREND: not a CLI file")
     head_text = data[:end].decode("ascii", "replace")
     header: dict[str, str] = {}
     origin = None
@@ -305,10 +305,10 @@ def read_cli(path) -> CliFile:
             cmd, _, value = line[2:].partition("/")
             header[cmd.strip().upper()] = value.strip()
     if "UNITS" not in header:
-        raise ValueError(f"{path}: the header has no $$UNITS")
+        raise ReadError(f"{path}: the header has no $$UNITS")
     units = float(header["UNITS"])
     if "ALIGN" in header:
-        raise ValueError(f"{path}: $$ALIGN (32-bit aligned) files are not supported by this reader")
+        raise ReadError(f"{path}: $$ALIGN (32-bit aligned) files are not supported by this reader")
     binary = "BINARY" in header
     geom = data[end + len(b"$$HEADEREND"):]
     if binary:
@@ -325,7 +325,7 @@ def _read_binary(buf: bytes, u: float, path, base: int) -> tuple[list[CliLayer],
 
     def need(n: int) -> None:
         if pos + n > n_buf:
-            raise ValueError(f"{path}: truncated geometry at byte {base + pos}")
+            raise ReadError(f"{path}: truncated geometry at byte {base + pos}")
 
     while pos < n_buf:
         need(2)
@@ -340,7 +340,7 @@ def _read_binary(buf: bytes, u: float, path, base: int) -> tuple[list[CliLayer],
             forms.add("long" if cmd == CMD_LAYER_LONG else "short")
             continue
         if not layers:
-            raise ValueError(f"{path}: command {cmd} before the first layer at byte {base + pos - 2}")
+            raise ReadError(f"{path}: command {cmd} before the first layer at byte {base + pos - 2}")
         if cmd in (CMD_POLYLINE_LONG, CMD_POLYLINE_SHORT):
             long = cmd == CMD_POLYLINE_LONG
             meta, coord = ("<iii", "<f4") if long else ("<HHH", "<u2")
@@ -362,7 +362,7 @@ def _read_binary(buf: bytes, u: float, path, base: int) -> tuple[list[CliLayer],
             need(0)
             layers[-1].hatches += n
         else:
-            raise ValueError(f"{path}: unknown binary command {cmd} at byte {base + pos - 2}")
+            raise ReadError(f"{path}: unknown binary command {cmd} at byte {base + pos - 2}")
     if len(forms) > 1:
         return layers, "mixed"
     return layers, (forms.pop() if forms else "long")
@@ -372,7 +372,7 @@ def _read_ascii(text: str, u: float, path) -> list[CliLayer]:
     text = re.sub(r"//.*?//", "", text, flags=re.S)
     start = text.find("$$GEOMETRYSTART")
     if start < 0:
-        raise ValueError(f"{path}: ASCII CLI without $$GEOMETRYSTART")
+        raise ReadError(f"{path}: ASCII CLI without $$GEOMETRYSTART")
     layers: list[CliLayer] = []
     for cmd in re.split(r"\$\$", text[start:])[2:]:  # [0] is "", [1] is GEOMETRYSTART
         name, _, args = cmd.partition("/")
@@ -384,18 +384,18 @@ def _read_ascii(text: str, u: float, path) -> list[CliLayer]:
             layers.append(CliLayer(float(values[0]) * u))
         elif name == "POLYLINE":
             if not layers:
-                raise ValueError(f"{path}: $$POLYLINE before the first $$LAYER")
+                raise ReadError(f"{path}: $$POLYLINE before the first $$LAYER")
             d, n = int(values[1]), int(values[2])
             pts = np.array(values[3:3 + 2 * n], dtype=np.float64)
             if pts.size != 2 * n:
-                raise ValueError(f"{path}: $$POLYLINE announces {n} points but has {pts.size // 2}")
+                raise ReadError(f"{path}: $$POLYLINE announces {n} points but has {pts.size // 2}")
             layers[-1].polylines.append((d, pts.reshape(n, 2) * u))
         elif name == "HATCHES":
             if not layers:
-                raise ValueError(f"{path}: $$HATCHES before the first $$LAYER")
+                raise ReadError(f"{path}: $$HATCHES before the first $$LAYER")
             layers[-1].hatches += int(values[1])
         else:
-            raise ValueError(f"{path}: unknown ASCII CLI command $${name}")
+            raise ReadError(f"{path}: unknown ASCII CLI command $${name}")
     return layers
 
 

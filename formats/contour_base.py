@@ -119,11 +119,11 @@ class ContourWriter(StackWriter):
         k = int(k)
         if not self._next <= k < self.grid.layers:
             self.abort()
-            raise ValueError(f"{self.path}: layer {k} is out of order or range (next is {self._next}, "
+            raise OutputError(f"{self.path}: layer {k} is out of order or range (next is {self._next}, "
                              f"the grid has {self.grid.layers} layers)")
         if not math.isclose(float(z), self.z_section(k), rel_tol=0.0, abs_tol=1e-6 * self.layer_height):
             self.abort()
-            raise ValueError(f"{self.path}: layer {k} is cut at z = {z!r} but the grid's layer {k} is at "
+            raise OutputError(f"{self.path}: layer {k} is cut at z = {z!r} but the grid's layer {k} is at "
                              f"z = {self.z_section(k)!r}")
         polys = oriented_polygons(polygons)
         try:

@@ -136,7 +136,7 @@ class GooWriter(StackWriter):
 
     def write_layer(self, k: int, image: np.ndarray) -> None:
         if k != self._k:
-            raise ValueError(f"layers must be written in order: expected {self._k}, got {k}")
+            raise OutputError(f"layers must be written in order: expected {self._k}, got {k}")
         s = self.settings
         payload, checksum = encode_layer(self.printer.to_native(image))
         lift_d, lift_v, retract_d, retract_v = self.printer.lift

@@ -47,6 +47,9 @@ import json
 
 import numpy as np
 
+from slicer._kernels.islands import island_sizes as _island_sizes
+from slicer.errors import OutputError
+
 from .base import build_time, png_bytes
 from .printers import PrintSettings
 from .thumbnails import TopView, png_rgba
@@ -70,12 +73,10 @@ def island_sizes(image: np.ndarray) -> np.ndarray:
     (n,) int64
         One count per island, in the row-major order of their first pixel.
     """
-    from slicer._kernels.islands import island_sizes as _kernel
-
     img = np.asarray(image)
     if img.ndim != 2:
-        raise ValueError(f"island_sizes: expected a 2-D image, got shape {img.shape}")
-    return _kernel(np.ascontiguousarray(img != 0, dtype=np.uint8))
+        raise OutputError(f"island_sizes: expected a 2-D image, got shape {img.shape}")
+    return _island_sizes(np.ascontiguousarray(img != 0, dtype=np.uint8))
 
 
 def layer_info(image: np.ndarray, pitch: tuple[float, float]) -> dict:
@@ -124,7 +125,7 @@ def pack_rgb(image: np.ndarray) -> np.ndarray:
     """
     h, w = image.shape
     if w % 3:
-        raise ValueError(f"pack_rgb: the width {w} is not a multiple of 3")
+        raise OutputError(f"pack_rgb: the width {w} is not a multiple of 3")
     return np.ascontiguousarray(image, dtype=np.uint8).reshape(h, w // 3, 3)
 
 
@@ -132,7 +133,7 @@ def unpack_rgb(pixels: np.ndarray) -> np.ndarray:
     """Inverse of :func:`pack_rgb`: (h, w, 3) RGB to the (h, 3 w) display image."""
     h, w, c = pixels.shape
     if c != 3:
-        raise ValueError(f"unpack_rgb: expected 3 channels, got {c}")
+        raise OutputError(f"unpack_rgb: expected 3 channels, got {c}")
     return np.ascontiguousarray(pixels, dtype=np.uint8).reshape(h, 3 * w)
 
 
@@ -153,8 +154,6 @@ class NanoDlpWriter(ZipArchiveWriter):
     name = "nanodlp"
 
     def __init__(self, path, grid, meta=None, force=False, settings=None):
-        from slicer.errors import OutputError
-
         if settings is None:
             settings = PrintSettings(None, grid.layer_height)
         p = settings.printer
@@ -185,7 +184,7 @@ class NanoDlpWriter(ZipArchiveWriter):
             return self.printer.to_native(image)
         cols, rows = self.display
         if image.shape != (self.grid.height, self.grid.width):
-            raise ValueError(f"layer image must be {(self.grid.height, self.grid.width)}, got {image.shape}")
+            raise OutputError(f"layer image must be {(self.grid.height, self.grid.width)}, got {image.shape}")
         if cols == image.shape[1]:
             return image
         out = np.zeros((rows, cols), np.uint8)

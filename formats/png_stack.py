@@ -59,7 +59,7 @@ class PngStackWriter(StackWriter):
 
     def write_layer(self, k: int, image: np.ndarray) -> None:
         if k != len(self._files):
-            raise ValueError(f"layers must be written in order: expected {len(self._files)}, got {k}")
+            raise OutputError(f"layers must be written in order: expected {len(self._files)}, got {k}")
         name = LAYER_NAME.format(k)
         try:
             data = png_bytes(image)

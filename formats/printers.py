@@ -33,7 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slicer.errors import GridError
+from slicer.errors import GridError, OptionError, OutputError
+from slicer.grid import SliceGrid
 
 
 @dataclass(frozen=True)
@@ -127,7 +128,7 @@ class Printer:
         (native_shape) array
         """
         if plate.shape != self.plate_shape:
-            raise ValueError(f"{self.name}: plate image must be {self.plate_shape}, got {plate.shape}")
+            raise OutputError(f"{self.name}: plate image must be {self.plate_shape}, got {plate.shape}")
         if self.orientation == "portrait":
             img = plate.T                    # row = X index, column = Y index from the top
             if self.mirror_x:                # mirror_x' false: column = Y / py from Y = 0
@@ -193,7 +194,7 @@ def get_printer(name: str) -> Printer:
     try:
         return PRINTERS[key]
     except KeyError:
-        raise GridError(f"unknown printer {name!r}; choose one of {', '.join(sorted(PRINTERS))}") from None
+        raise OptionError(f"unknown printer {name!r}; choose one of {', '.join(sorted(PRINTERS))}") from None
 
 
 @dataclass(frozen=True)
@@ -285,8 +286,6 @@ class Placement:
     @property
     def grid(self):
         """The plate grid (full printer resolution), a SliceGrid."""
-        from slicer.grid import SliceGrid
-
         px, py = self.printer.pixel_size
         nx, ny = self.printer.pixels
         origin = (0.5 * px, self.printer.display[1] - 0.5 * py, 0.5 * self.layer_height)
@@ -374,104 +373,6 @@ def place(result, printer: Printer, aa: int = 1, at=None) -> Placement:
 
 
 
-@dataclass(frozen=True)
-class JobSpec:
-    """A slicing job's output format, print settings and tracing pitch.
-
-    Attributes
-    ----------
-    fmt : str
-        Output format name.
-    settings : PrintSettings or None
-        None for a plain stack (no printer, no anti-aliasing, no exposure
-        options): output as before.
-    pitch : (2,) float, mm
-        Pixel pitch to trace at (output pitch / aa).
-    layer_height : float, mm
-    spans : bool
-        Trace with real-valued inside spans (``--aa-z``).
-    """
-
-    fmt: str
-    settings: PrintSettings | None
-    pitch: tuple[float, float]
-    layer_height: float
-    spans: bool = False
-
-
-def resolve_job(fmt, out, printer=None, pixel_size=None, pixel_size_y=None, layer_height=None,
-                bounds=None, aa=1, aa_z=False, gamma=1.0, at=None, exposure=None, bottom_exposure=None,
-                bottom_layers=None) -> JobSpec:
-    """Check a job's format and printer options before any work.
-
-    The format is ``fmt``, else the output's suffix, else the printer's
-    default format, else ``png``. ``sl1``/``sl1s`` without ``--printer`` use
-    the Prusa SL1/SL1S profile; ``goo`` needs an explicit printer. With a
-    printer, the pixel pitch and default layer height come from the profile
-    and ``--pixel-size``/``--bounds`` are refused.
-
-    Raises
-    ------
-    GridError
-        Conflicting or invalid options (naming them).
-    OutputError
-        Unknown format.
-    """
-    from slicer.antialias import check_aa
-    from slicer.checks import positive_number
-
-    from . import format_for, writer_for
-
-    prn = get_printer(printer) if printer is not None else None
-    name = format_for(fmt, out, prn.format if prn is not None else "png")
-    cls = writer_for(name, out)
-    if prn is None and cls.default_printer:
-        prn = get_printer(cls.default_printer)
-    if prn is None and cls.needs_printer:
-        raise GridError(f"the {name} format needs --printer NAME; choose one of "
-                        f"{', '.join(sorted(PRINTERS))}")
-    aa, gamma = check_aa(aa, gamma)
-    if prn is not None:
-        if pixel_size is not None or pixel_size_y is not None:
-            raise GridError(f"--pixel-size cannot be combined with a printer ({prn.name} has "
-                            f"{prn.pixel_size[0]:g} x {prn.pixel_size[1]:g} mm pixels)")
-        if bounds is not None:
-            raise GridError("--bounds cannot be combined with a printer: the model is placed on the plate "
-                            "(use --at X Y)")
-        px, py = prn.pixel_size
-        h = positive_number(layer_height, "layer height", GridError) if layer_height is not None \
-            else prn.layer_height
-    else:
-        if at is not None:
-            raise GridError("--at needs --printer (it places the model on a printer's plate)")
-        if pixel_size is None:
-            raise GridError("--pixel-size is required without --printer")
-        px = positive_number(pixel_size, "pixel size", GridError)
-        py = positive_number(pixel_size_y, "pixel size y", GridError) if pixel_size_y is not None else px
-        h = positive_number(layer_height, "layer height", GridError) if layer_height is not None else px
-    options = (exposure, bottom_exposure, bottom_layers)
-    settings = None
-    if prn is not None or aa > 1 or aa_z or any(v is not None for v in options):
-        if bottom_layers is not None and (isinstance(bottom_layers, bool) or int(bottom_layers) != bottom_layers
-                                          or bottom_layers < 0):
-            raise GridError(f"--bottom-layers must be an integer >= 0, got {bottom_layers!r}")
-        settings = PrintSettings(
-            prn, h,
-            exposure=positive_number(exposure, "exposure", GridError) if exposure is not None
-            else (prn.exposure if prn else 2.0),
-            bottom_exposure=positive_number(bottom_exposure, "bottom exposure", GridError)
-            if bottom_exposure is not None else (prn.bottom_exposure if prn else 25.0),
-            bottom_layers=int(bottom_layers) if bottom_layers is not None else (prn.bottom_layers if prn else 10),
-            aa=aa, aa_z=bool(aa_z), gamma=gamma,
-            at=None if at is None else (float(at[0]), float(at[1])))
-        check = getattr(cls, "check_settings", None)
-        if check is not None:
-            check(settings)
-    return JobSpec(name, settings, (px / aa, py / aa), h, bool(aa_z))
-
-
-
-
 def plate_printer(fmt: str, path, grid, settings) -> Printer:
     """The printer of a printer-format writer, checking the layers fill its plate.
 
@@ -480,8 +381,6 @@ def plate_printer(fmt: str, path, grid, settings) -> Printer:
     OutputError
         No printer in ``settings``, or ``grid`` is not the printer's display.
     """
-    from slicer.errors import OutputError
-
     if settings is None or settings.printer is None:
         raise OutputError(f"{path}: the {fmt} format needs a printer profile (--printer)")
     p = settings.printer
@@ -491,5 +390,4 @@ def plate_printer(fmt: str, path, grid, settings) -> Printer:
     return p
 
 
-__all__ = ["Printer", "PRINTERS", "get_printer", "PrintSettings", "Placement", "place", "JobSpec", "resolve_job",
-           "plate_printer"]
+__all__ = ["Printer", "PRINTERS", "get_printer", "PrintSettings", "Placement", "place", "plate_printer"]

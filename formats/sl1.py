@@ -27,7 +27,7 @@ import re
 
 import numpy as np
 
-from slicer.errors import GridError
+from slicer.errors import FormatError
 
 from .base import build_time, png_bytes
 from .printers import plate_printer
@@ -67,17 +67,17 @@ class Sl1Writer(ZipArchiveWriter):
 
     @classmethod
     def check_settings(cls, settings) -> None:
-        """Refuse exposures and fade counts the firmware rejects (GridError)."""
+        """Refuse exposures and fade counts the firmware rejects (FormatError)."""
         lo, hi = EXPOSURE_RANGE
         if not lo <= settings.exposure <= hi:
-            raise GridError(f"{cls.name}: exposure {settings.exposure:g} s is outside the printer's {lo:g}-{hi:g} s")
+            raise FormatError(f"{cls.name}: exposure {settings.exposure:g} s is outside the printer's {lo:g}-{hi:g} s")
         lo, hi = FIRST_EXPOSURE_RANGE
         if not lo <= settings.bottom_exposure <= hi:
-            raise GridError(f"{cls.name}: bottom exposure {settings.bottom_exposure:g} s is outside the "
+            raise FormatError(f"{cls.name}: bottom exposure {settings.bottom_exposure:g} s is outside the "
                             f"printer's {lo:g}-{hi:g} s")
         lo, hi = FADE_RANGE
         if not lo <= settings.bottom_layers <= hi:
-            raise GridError(f"{cls.name}: bottom (faded) layers {settings.bottom_layers} is outside the "
+            raise FormatError(f"{cls.name}: bottom (faded) layers {settings.bottom_layers} is outside the "
                             f"printer's {lo}-{hi}")
 
     def __init__(self, path, grid, meta=None, force=False, settings=None):

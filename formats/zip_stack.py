@@ -42,7 +42,7 @@ class ZipArchiveWriter(StackWriter):
     def next_layer(self, k: int) -> None:
         """Check that layer ``k`` is the next one."""
         if k != self._k:
-            raise ValueError(f"layers must be written in order: expected {self._k}, got {k}")
+            raise OutputError(f"layers must be written in order: expected {self._k}, got {k}")
 
     def add(self, name: str, data, compress: bool) -> None:
         """Write one member (OutputError, and nothing left behind, on failure)."""
@@ -72,7 +72,7 @@ class ZipArchiveWriter(StackWriter):
     def abort(self) -> None:
         try:
             self._zip.close()
-        except (OSError, ValueError):
+        except (OSError, ValueError):   # ValueError: zipfile already closed
             pass
         self._out.discard()
 

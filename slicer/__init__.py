@@ -1,38 +1,65 @@
 """skelslice: slicing of skeleton-based scale-invariant integral surfaces.
 
-Public API
-----------
-Skeleton, load_scene, save_scene
-    Scene model and file format (JSON v1, OBJ polylines).
-lattice
-    Lattice / microstructure generator.
+The main entry points, importable from ``slicer`` itself:
+
+======================  ====================================================
+``Skeleton``            the scene model: nodes, segments, end radii, kernel
+``load_scene``          read a ``.json`` scene, ``.obj`` polylines or a
+                        ``.3mf`` beam lattice
+``save_scene``          write a scene (JSON v1 or OBJ), atomically
+``generate_lattice``    unit-cell lattices and microstructures
+``slice_skeleton``      inside runs per pixel column (every voxel centre exact)
+``run_slice``           the ``slice`` command's job: slice and write a format
+``SliceJob``            a job's settings as data (grid, tracing, printer, scale)
+======================  ====================================================
+
+Examples
+--------
+>>> import slicer
+>>> s = slicer.Skeleton([[0, 0, 0], [0, 0, 4]], [[0, 1]], [[1.0, 1.0]])
+>>> res = slicer.slice_skeleton(s, 0.25)
+>>> res.grid.width, res.grid.height, res.grid.layers
+(9, 9, 21)
+>>> float(s.field([[0.0, 0.0, 2.0]])[0]) > 1       # on the axis: inside
+True
+
+The job-level names (``run_slice``, ``SliceJob``) are loaded on first use:
+they sit above the output formats (:mod:`formats`), which themselves use
+this package's core modules, so importing them here eagerly would make
+``import formats`` circular.
 """
 from __future__ import annotations
 
-from .errors import GridError, OutputError, SceneError, SkelsliceError
-from .skeleton import Skeleton, kernel_normalisation
+import importlib
 
-__version__ = "0.1.0"
+from ._version import __version__
+from .errors import (FormatError, GridError, MissingDependencyError, OptionError, OutputError, SceneError,
+                     SkelsliceError, UsageError)
+from .kernel import kernel_normalisation
+from .lattice import generate_lattice
+from .scene_io import load_scene, save_scene
+from .skeleton import Skeleton
+from .slicing import SliceResult, slice_skeleton
+
+#: name -> module of the names loaded on first use (see the module docstring)
+_LAZY = {"run_slice": "slicer.job", "SliceJob": "slicer.jobspec"}
 
 
-def load_scene(path, radius: float | None = None) -> Skeleton:
-    """Read a scene file (``.json`` scene v1, or ``.obj`` polylines).
-
-    See :func:`slicer.scene_io.load_scene`.
-    """
-    from .scene_io import load_scene as _load
-
-    return _load(path, radius=radius)
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'slicer' has no attribute {name!r}")
 
 
-def save_scene(skel: Skeleton, path) -> None:
-    """Write a scene as JSON v1, atomically. See :func:`slicer.scene_io.save_scene`."""
-    from .scene_io import save_scene as _save
-
-    _save(skel, path)
+def __dir__():
+    return sorted([*globals(), *_LAZY])
 
 
 __all__ = [
-    "Skeleton", "kernel_normalisation", "load_scene", "save_scene",
-    "SkelsliceError", "SceneError", "GridError", "OutputError", "__version__",
+    "Skeleton", "kernel_normalisation", "load_scene", "save_scene", "generate_lattice", "slice_skeleton",
+    "SliceResult", "run_slice", "SliceJob",
+    "SkelsliceError", "SceneError", "UsageError", "OptionError", "GridError", "FormatError",
+    "MissingDependencyError", "OutputError", "__version__",
 ]

@@ -33,7 +33,9 @@ from typing import Iterator
 
 import numpy as np
 
-from .checks import positive_number
+from formats.printers import place
+
+from .checks import integer, positive_number
 from .errors import GridError
 from .grid import SliceGrid
 
@@ -120,9 +122,7 @@ def iter_sub_coverage(result, aa_z: bool) -> Iterator[np.ndarray]:
 
 def check_aa(aa, gamma) -> tuple[int, float]:
     """Validate ``--aa`` (integer 1..16) and ``--gamma`` (> 0)."""
-    if isinstance(aa, bool) or int(aa) != aa or not 1 <= int(aa) <= 16:
-        raise GridError(f"--aa must be an integer from 1 to 16, got {aa!r}")
-    return int(aa), positive_number(gamma, "--gamma", GridError)
+    return integer(aa, "--aa", lo=1, hi=16), positive_number(gamma, "--gamma")
 
 
 def paste(canvas: np.ndarray, win: np.ndarray, top: int, left: int) -> None:
@@ -135,7 +135,7 @@ def paste(canvas: np.ndarray, win: np.ndarray, top: int, left: int) -> None:
         canvas[r0:r1, c0:c1] = win[r0 - top:r1 - top, c0 - left:c1 - left]
 
 
-def render(result, settings) -> tuple[SliceGrid, Iterator[np.ndarray]]:
+def output_layers(result, settings) -> tuple[SliceGrid, Iterator[np.ndarray]]:
     """The output grid and the layer images of a traced result.
 
     Parameters
@@ -159,8 +159,6 @@ def render(result, settings) -> tuple[SliceGrid, Iterator[np.ndarray]]:
         layers = (grey_from_coverage(box_filter(c, n)[0], settings.gamma)
                   for c in iter_sub_coverage(result, settings.aa_z))
         return output_grid(result.grid, n), layers
-    from formats.printers import place
-
     pl = place(result, settings.printer, n, settings.at)
     return pl.grid, _plate_layers(result, pl, settings)
 
@@ -183,4 +181,4 @@ def _plate_layers(result, pl, settings) -> Iterator[np.ndarray]:
 
 
 __all__ = ["grey_from_coverage", "box_filter", "output_grid", "iter_sub_coverage", "check_aa", "paste",
-           "render"]
+           "output_layers"]

@@ -1,7 +1,7 @@
 """Command-line interface: ``skelslice COMMAND ...``.
 
 The group only parses and dispatches; each command lives in
-:mod:`slicer.commands` and imports heavy modules (Numba kernels) lazily.
+:mod:`slicer.commands`.
 Any :class:`~slicer.errors.SkelsliceError` becomes a one-line message on
 stderr and exit status 2, never a traceback.
 """
@@ -11,6 +11,7 @@ import sys
 
 import click
 
+from .commands import COMMANDS
 from .errors import SkelsliceError
 
 
@@ -31,14 +32,8 @@ def main() -> None:
     """skelslice: slice skeleton-based integral surfaces into printer layers."""
 
 
-def _register() -> None:
-    from .commands import COMMANDS
-
-    for cmd in COMMANDS:
-        main.add_command(cmd)
-
-
-_register()
+for _cmd in COMMANDS:
+    main.add_command(_cmd)
 
 if __name__ == "__main__":  # pragma: no cover
     main()

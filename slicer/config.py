@@ -23,14 +23,10 @@ from pathlib import Path
 
 import click
 
-from .errors import SkelsliceError
+from .errors import ConfigError
 
 #: keys whose relative paths are resolved against the TOML file's folder
 PATH_KEYS = ("scene", "out")
-
-
-class ConfigError(SkelsliceError, ValueError):
-    """A ``--config`` file cannot be read or has unknown keys or bad values."""
 
 
 def _names(command: click.Command) -> dict[str, click.Parameter]:

@@ -15,7 +15,8 @@ traceback. Input problems are also :class:`ValueError` and output problems
     │   ├── GridError                      the slicing grid or job does not work out
     │   └── FormatError                    the output format cannot hold the job
     ├── MissingDependencyError (ImportError)  an optional package is not installed
-    └── OutputError (OSError)              an output cannot be written
+    ├── ReadError (ValueError)             a file in an output format cannot be read back
+    └── OutputError (OSError)              an output cannot be written (or a writer is misused)
 """
 from __future__ import annotations
 
@@ -81,8 +82,13 @@ class MissingDependencyError(SkelsliceError, ImportError):
                          f"install it with: pip install 'skelslice[{extra}]'")
 
 
+class ReadError(SkelsliceError, ValueError):
+    """A file in one of the output formats cannot be read back (the readers in :mod:`formats`)."""
+
+
 class OutputError(SkelsliceError, OSError):
-    """An output cannot be written (exists, unwritable, disk full)."""
+    """An output cannot be written (exists, unwritable, disk full), or a writer is used out of
+    its protocol (layers out of order, a layer of the wrong size)."""
 
 
 def require(package: str, extra: str, needed_for: str):
@@ -102,4 +108,4 @@ def require(package: str, extra: str, needed_for: str):
 
 
 __all__ = ["SkelsliceError", "SceneError", "UsageError", "OptionError", "ConfigError", "GridError",
-           "FormatError", "MissingDependencyError", "OutputError", "require"]
+           "FormatError", "MissingDependencyError", "ReadError", "OutputError", "require"]

@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ._kernels.binning import bin_boxes
+from ._kernels.points import field_at_points
 from .errors import SceneError
-from .skeleton import Skeleton
+
+if TYPE_CHECKING:          # annotations only: the skeleton module imports this one
+    from .skeleton import Skeleton
 
 
 def segment_table(skel: Skeleton) -> np.ndarray:
@@ -83,8 +88,6 @@ def point_grid(skel: Skeleton, max_cells: int = 2_000_000) -> tuple[np.ndarray, 
     hit = _GRID_CACHE.get(skel)
     if hit is not None:
         return hit
-    from ._kernels.binning import bin_boxes
-
     table = segment_table(skel)
     lo, hi = support_boxes(skel)
     blo = lo.min(axis=0)
@@ -138,8 +141,6 @@ def evaluate(skel: Skeleton, points, gradient: bool = False) -> tuple[np.ndarray
     f : (k,) float64
     g : (k, 3) float64, 1/mm, or None
     """
-    from ._kernels.points import field_at_points
-
     p = as_points(points)
     if skel.n_segments == 0:
         return np.zeros(p.shape[0]), (np.zeros_like(p) if gradient else None)

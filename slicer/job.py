@@ -1,13 +1,34 @@
-"""A whole slicing job: scene in, printer output written atomically."""
+"""A whole slicing job: scene in, printer output written atomically.
+
+:func:`run_slice` takes a :class:`~slicer.jobspec.SliceJob` (or the same
+settings as keyword options), refuses what it can before any tracing
+(destinations, options, grid size, plate fit from a guaranteed lower bound of
+the footprint), traces — in memory or in tiles and slabs — and streams the
+layers to a writer of :mod:`formats`.
+"""
 from __future__ import annotations
 
 import time
 from pathlib import Path
 
-from . import __version__
-from .errors import GridError
+import numpy as np
+from tqdm import tqdm
+
+from formats import WRITERS, writer_for
+from formats.printers import place
+
+from ._version import __version__
+from .antialias import output_layers
+from .atomic import check_destination
+from .contours import iter_contours, write_contours
+from .errors import GridError, OutputError
+from .executors import executor_info as describe_executor
+from .field import evaluate
+from .grid import SliceGrid, make_grid
+from .jobspec import ResolvedJob, SliceJob
 from .skeleton import Skeleton
 from .slicing import SliceResult, slice_skeleton
+from .tiles import plan_slice, slice_planned
 
 
 def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | None = None,
@@ -35,7 +56,7 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
         Contour accuracy for contour formats.
     settings : formats.printers.PrintSettings, optional
         Printer placement, anti-aliasing and exposure for image formats (see
-        :func:`slicer.antialias.render`); None writes ``result``'s own layers.
+        :func:`slicer.antialias.output_layers`); None writes ``result``'s own layers.
         With a printer, contour formats are placed on the plate too (the same
         layers and position as the images, coordinates in plate mm).
 
@@ -44,42 +65,32 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
     float
         Seconds spent producing and writing layers.
     """
-    from tqdm import tqdm
-
-    from formats import writer_for
-
     t0 = time.perf_counter()
     writer_cls = writer_for(fmt, out)
     contours = getattr(writer_cls, "kind", "image") == "contours"
     if contours and skel is None:
-        raise ValueError(f"the {writer_cls.name} format writes contours: pass the skeleton (skel=...)")
+        raise OutputError(f"{out}: the {writer_cls.name} format writes contours: pass the skeleton (skel=...)")
     placement = plate_placement(result, settings)
     if settings is not None and not contours:
-        from .antialias import render
-
-        grid, layers = render(result, settings)        # places on the plate, anti-aliases
+        grid, layers = output_layers(result, settings)        # places on the plate, anti-aliases
         writer = writer_cls(out, grid, meta, force=force, settings=settings)
-    elif placement is not None:                        # contours on the printer's plate
+    elif placement is not None:                                # contours on the printer's plate
         grid = placement.grid
         writer = writer_cls(out, grid, meta, force=force)
     else:
         grid, layers = result.grid, result.iter_layers()
         writer = writer_cls(out, result.grid, meta, force=force)
-    if contours:
-        from .contours import iter_contours
-
-        with writer:
-            bar = tqdm(iter_contours(skel, result, contour_tol, placement=placement), total=grid.layers,
-                       unit="layer",
-                       disable=(None if progress is None else not progress), leave=False, desc="contours")
-            for k, z, polys in bar:
-                writer.write_layer(k, z, polys)
-        return time.perf_counter() - t0
+    hide = None if progress is None else not progress
     with writer:
-        bar = tqdm(layers, total=grid.layers, unit="layer", disable=(None if progress is None else not progress),
-                   leave=False, desc="writing")
-        for k, img in enumerate(bar):
-            writer.write_layer(k, img)
+        if contours:
+            items = iter_contours(skel, result, contour_tol, placement=placement)
+            for k, z, polys in tqdm(items, total=grid.layers, unit="layer", disable=hide, leave=False,
+                                    desc="contours"):
+                writer.write_layer(k, z, polys)
+        else:
+            for k, img in enumerate(tqdm(layers, total=grid.layers, unit="layer", disable=hide, leave=False,
+                                         desc="writing")):
+                writer.write_layer(k, img)
     return time.perf_counter() - t0
 
 
@@ -88,108 +99,217 @@ def plate_placement(result: SliceResult, settings):
     (:func:`formats.printers.place`), or None without a printer."""
     if settings is None or settings.printer is None:
         return None
-    from formats.printers import place
-
     return place(result, settings.printer, settings.aa, settings.at)
 
 
-def run_slice(skel: Skeleton, out, *, pixel_size: float | None = None, pixel_size_y: float | None = None,
-              layer_height: float | None = None, bounds=None, method: str = "interval",
-              bucket: int = 64, threads: int | None = None, strict: bool = False,
-              fmt: str | None = None, force: bool = False, scene_name: str | None = None,
-              progress: bool | None = None, contour_tol: float = 1e-3, printer: str | None = None,
-              at=None, aa: int = 1, aa_z: bool = False, gamma: float = 1.0, exposure: float | None = None,
-              bottom_exposure: float | None = None, bottom_layers: int | None = None,
-              max_memory=None, executor=None, executor_info=None, workers: int | None = None,
-              scheduler: str | None = None, tile: int | None = None, slab: int | None = None,
-              dry_run: bool = False, report=None, contours=None) -> dict:
+def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: bool | None = None,
+              dry_run: bool = False, report=None, executor_info=None, **options) -> dict:
     """Slice ``skel`` and write the layers to ``out``; returns a summary dict.
 
-    ``printer`` (a :data:`formats.printers.PRINTERS` name) sets the pixel
-    pitch and places the model on the plate (centred, or its footprint
-    centre ``at`` = (X, Y) plate mm, bottom on the plate); ``aa``, ``aa_z``
-    and ``gamma`` anti-alias (:mod:`slicer.antialias`); ``exposure``,
-    ``bottom_exposure`` (s) and ``bottom_layers`` go into printer formats.
-    :func:`formats.printers.resolve_job` checks how the options combine.
+    Parameters
+    ----------
+    skel : Skeleton
+    out : path-like
+        The output (a folder for PNG stacks, else a file).
+    job : SliceJob, optional
+        Every setting of the job. Instead, the same settings may be given as
+        keyword ``options`` with the ``slice`` command's option names
+        (``pixel_size=0.05, printer="prusa-sl1s", aa=2, max_memory="4GB", ...``,
+        see :data:`slicer.jobspec.OPTIONS`); not both.
+    progress : bool or None
+        tqdm bars; None shows them only on a terminal.
+    dry_run : bool
+        Plan (after a quick sample) and return the plan, writing nothing.
+    report : callable, optional
+        Called with the tile plan's description before tracing.
+    executor_info : slicer.executors.ExecutorInfo, optional
+        With an open executor passed as ``executor``.
 
-    ``max_memory`` (bytes or ``"4GB"``), ``executor`` (a kind, opened
-    after the request is checked, with ``workers`` and ``scheduler``; or an
-    open executor with its ``executor_info``, see
-    :func:`slicer.executors.open_executor`), ``tile`` (px) and ``slab``
-    (layers) slice in tiles and slabs that fit the budget
-    (:mod:`slicer.tiles`); ``report`` is called with the plan's description
-    before tracing; ``dry_run`` returns the plan (``plan`` in the summary)
-    after a quick sample, writing nothing.
+    Returns
+    -------
+    dict
+        The output grid (``width``, ``height``, ``layers``, ``pixel_size``,
+        ``layer_height``, ``origin``), the tracer's stats (``evaluations``,
+        ``trace_seconds``, ...), ``write_seconds``, ``runs``, ``output``,
+        ``format`` and ``contours``; with ``dry_run``: ``plan``,
+        ``plan_text`` and ``dry_run``.
 
     Raises
     ------
     OutputError
         ``out`` exists (without ``force``) or cannot be written; checked before
         any work. Nothing is left at ``out`` on any failure.
+    OptionError, FormatError
+        Invalid or conflicting options, or what the format cannot hold.
     GridError
-        Invalid sizes or bounds, a grid beyond the voxel limit (refused before
-        any work), or, with default bounds, a scene with no surface at all.
+        A grid beyond the voxel limit, a model that cannot fit the printer's
+        plate (all refused before any tracing), or, with default bounds, a
+        scene with no surface at all.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> s = Skeleton([[0, 0, 0], [0, 0, 4]], [[0, 1]], [[1.0, 1.0]])
+    >>> out = pathlib.Path(tempfile.mkdtemp()) / "strut_stack"
+    >>> summary = run_slice(s, out, pixel_size=0.25, progress=False)
+    >>> summary["width"], summary["layers"], summary["format"]
+    (9, 21, 'png')
     """
-    import inspect
-
-    from formats import WRITERS
-    from formats.base import check_destination
-    from formats.printers import resolve_job
-
-    from .antialias import render
-
-    check_destination(Path(out), force)   # fail before any work
-    if contours is not None:              # ``--contours FILE``: GeoJSON / JSON beside the images
-        check_destination(Path(contours), force)
-    job = resolve_job(fmt, out, printer, pixel_size, pixel_size_y, layer_height, bounds, aa, aa_z, gamma, at,
-                      exposure, bottom_exposure, bottom_layers)
-    if job.spans and "spans" not in inspect.signature(slice_skeleton).parameters:
-        raise GridError("--aa-z needs the tracer's inside spans (slice_skeleton(..., spans=True)), "
-                        "which this version does not provide")
-    if dry_run or report is not None or any(v is not None for v in (max_memory, executor, executor_info, tile, slab)):
-        from .executors import executor_info as describe
-        from .tiles import plan_slice, slice_planned
-
-        args = (skel, job.pitch[0], job.pitch[1], job.layer_height, bounds, method, bucket, threads, strict,
-                job.spans)
+    if job is None:
+        job = SliceJob.from_options(**options)
+    elif options:
+        raise TypeError(f"run_slice takes a SliceJob or keyword options, not both (got {sorted(options)})")
+    out_opts, scale = job.output, job.scale
+    check_destination(Path(out), out_opts.force)          # fail before any work
+    if out_opts.contours is not None:                      # ``--contours FILE`` beside the images
+        check_destination(Path(out_opts.contours), out_opts.force)
+    resolved = job.resolve(out)
+    opts = job.trace_options(resolved)
+    g = job.grid
+    grid_args = (skel, resolved.pitch[0], resolved.pitch[1], resolved.layer_height, g.bounds)
+    refuse_off_plate(skel, resolved, g.bounds)
+    if dry_run or report is not None or scale.planned or executor_info is not None:
+        executor = scale.executor
         if executor is None or isinstance(executor, str):
-            executor_info = describe(executor or "serial", workers, scheduler)
-        plan = plan_slice(*args, max_memory=max_memory, executor_info=executor_info, tile=tile, slab=slab,
-                          sample=True if dry_run else None)
+            executor_info = describe_executor(executor or "serial", scale.workers, scale.scheduler)
+        args = (*grid_args, opts.method, opts.bucket, opts.threads, opts.strict, opts.spans)
+        plan = plan_slice(*args, max_memory=scale.max_memory, executor_info=executor_info, tile=scale.tile,
+                          slab=scale.slab, sample=True if dry_run else None)
         if report is not None:
             report(plan.describe())
         if dry_run:
             return {**plan.grid.to_dict(), "plan": plan.to_dict(), "plan_text": plan.describe(), "dry_run": True,
-                    "output": str(out), "format": job.fmt}
-        res = slice_planned(*args, plan=plan, executor=executor, executor_info=executor_info, workers=workers,
-                            scheduler=scheduler, progress=progress)
+                    "output": str(out), "format": resolved.fmt}
+        res = slice_planned(*args, plan=plan, executor=executor, executor_info=executor_info,
+                            workers=scale.workers, scheduler=scale.scheduler, progress=progress)
     else:
-        res = slice_skeleton(skel, job.pitch[0], job.pitch[1], job.layer_height, bounds, method, bucket, threads,
-                             strict, **({"spans": True} if job.spans else {}))
-    if res.n_runs == 0 and bounds is None:
+        res = slice_skeleton(*grid_args, **opts.trace_kwargs())
+    if res.n_runs == 0 and g.bounds is None:
         raise GridError(
             "the surface is empty: no voxel centre is inside the solid (F >= 1). Struts shorter than "
             "about 0.688 x their radius, or thinner than the pixel, have no printable surface; "
             "see `skelslice info SCENE --pixel-size MM`")
-    meta = {"generator": f"skelslice {__version__}", "method": method, "bucket": res.stats["bucket"]}
-    if scene_name:
-        meta["scene"] = scene_name
-    write_s = write_stack(res, out, job.fmt, meta, force, progress, skel=skel, contour_tol=contour_tol,
-                          settings=job.settings)
+    meta = {"generator": f"skelslice {__version__}", "method": opts.method, "bucket": res.stats["bucket"]}
+    if out_opts.scene_name:
+        meta["scene"] = out_opts.scene_name
+    write_s = write_stack(res, out, resolved.fmt, meta, out_opts.force, progress, skel=skel,
+                          contour_tol=out_opts.contour_tol, settings=resolved.settings)
     contour_info = None
-    if contours is not None:
-        from .contours import write_contours
-
-        contour_info = write_contours(skel, res, contours, contour_tol, force, meta,
-                                      placement=plate_placement(res, job.settings))
-    images = getattr(WRITERS[job.fmt], "kind", "image") != "contours"
-    if job.settings is not None and images:
-        grid = render(res, job.settings)[0]
+    placement = plate_placement(res, resolved.settings)
+    if out_opts.contours is not None:
+        contour_info = write_contours(skel, res, out_opts.contours, out_opts.contour_tol, out_opts.force, meta,
+                                      placement=placement)
+    images = getattr(WRITERS[resolved.fmt], "kind", "image") != "contours"
+    if resolved.settings is not None and images:
+        grid = output_layers(res, resolved.settings)[0]
     else:
-        placement = plate_placement(res, job.settings)
         grid = res.grid if placement is None else placement.grid
     return {**grid.to_dict(), **res.stats, "write_seconds": write_s, "runs": res.n_runs,
-            "output": str(out), "format": job.fmt, "contours": contour_info}
+            "output": str(out), "format": resolved.fmt, "contours": contour_info}
+
+
+def footprint_lower_bound(skel: Skeleton, grid: SliceGrid, probes: int = 256) -> np.ndarray | None:
+    """A box of voxel centres known to be inside, found without tracing.
+
+    For each of the six axis directions, the voxel centres nearest the
+    skeleton's most extreme nodes along it are classified with the exact
+    field (``F >= 1`` with a margin of 1e-9 for rounding) until one is
+    inside; from there, the centres further out along the same direction,
+    up to the support's reach, are classified too and the farthest inside
+    one is kept. The inside voxels of a traced result include every centre
+    found here, so the box they span is a lower bound of the model's
+    footprint (and height) on this grid.
+
+    Parameters
+    ----------
+    skel : Skeleton
+    grid : SliceGrid
+        The grid the job will trace (any origin; centres outside it are ignored).
+    probes : int
+        Nodes tried per direction, at most.
+
+    Returns
+    -------
+    (2, 3) int64 or None
+        ``[[i0, j0, k0], [i1, j1, k1]]``: the lowest and highest column, row
+        and layer of inside centres found; None if none was found.
+    """
+    steps = np.array([grid.pixel_size[0], grid.pixel_size[1], grid.layer_height])
+    shape = np.array([grid.width, grid.height, grid.layers])
+    ijk = np.rint(_to_index(grid, skel.nodes))
+    ijk = ijk[np.all((ijk >= 0) & (ijk < shape), axis=1)].astype(np.int64)
+    if not len(ijk):
+        return None
+    reach = skel.sigma * float(skel.radii.max())
+    found = []
+    for axis in range(3):
+        # index direction that moves outward: +i is +x, +j is -y, +k is +z
+        for outward in (-1, 1):
+            order = np.argsort(-outward * ijk[:, axis], kind="stable")[:probes]
+            cand = ijk[order]
+            inside = _inside(skel, grid, cand)
+            if not inside.any():
+                continue
+            start = cand[int(np.argmax(inside))]
+            n = int(min(np.ceil(reach / steps[axis]) + 1, 4096))
+            ray = np.repeat(start[None, :], n, axis=0)
+            ray[:, axis] += outward * np.arange(1, n + 1)
+            ray = ray[(ray[:, axis] >= 0) & (ray[:, axis] < shape[axis])]
+            hit = _inside(skel, grid, ray) if len(ray) else np.zeros(0, bool)
+            found.append(ray[np.nonzero(hit)[0][-1]] if hit.any() else start)
+    if not found:
+        return None
+    found = np.array(found)
+    return np.stack([found.min(axis=0), found.max(axis=0)])
+
+
+def _to_index(grid: SliceGrid, points: np.ndarray) -> np.ndarray:
+    """(column, row, layer) coordinates of points, as floats."""
+    px, py = grid.pixel_size
+    x0, y0, z0 = grid.origin
+    return np.stack([(points[:, 0] - x0) / px, (y0 - points[:, 1]) / py, (points[:, 2] - z0) / grid.layer_height],
+                    axis=1)
+
+
+def _inside(skel: Skeleton, grid: SliceGrid, ijk: np.ndarray) -> np.ndarray:
+    """Whether voxel centres (column, row, layer) are certainly inside (F >= 1 + 1e-9)."""
+    px, py = grid.pixel_size
+    x0, y0, z0 = grid.origin
+    centres = np.stack([x0 + ijk[:, 0] * px, y0 - ijk[:, 1] * py, z0 + ijk[:, 2] * grid.layer_height], axis=1)
+    return evaluate(skel, centres)[0] >= 1.0 + 1e-9
+
+
+def refuse_off_plate(skel: Skeleton, resolved: ResolvedJob, bounds) -> None:
+    """Refuse, before tracing, a model that cannot fit the printer's plate.
+
+    Uses :func:`footprint_lower_bound` on the grid the job will trace, so a
+    refusal is certain: the traced footprint can only be larger. The exact
+    check (:func:`formats.printers.place`) still runs after tracing.
+
+    Raises
+    ------
+    GridError
+        The footprint's lower bound is wider or deeper than the plate, or
+        taller than the printer, naming both sizes.
+    """
+    prn = resolved.printer
+    if prn is None or skel.n_segments == 0:
+        return
+    grid = make_grid(skel.support_bounds(), resolved.pitch[0], resolved.pitch[1], resolved.layer_height, bounds)
+    box = footprint_lower_bound(skel, grid)
+    if box is None:
+        return
+    px, py = grid.pixel_size
+    size_x = (box[1, 0] - box[0, 0] + 1) * px
+    size_y = (box[1, 1] - box[0, 1] + 1) * py
+    height = (box[1, 2] - box[0, 2] + 1) * grid.layer_height
+    W, H = prn.display
+    if size_x > W + 1e-9 or size_y > H + 1e-9:
+        raise GridError(f"the model (at least {size_x:.2f} x {size_y:.2f} mm) does not fit on the {prn.label} "
+                        f"plate ({W:g} x {H:g} mm); refused before slicing")
+    if height > prn.max_height + 1e-9:
+        raise GridError(f"the model is at least {height:.2f} mm tall; the {prn.label} prints at most "
+                        f"{prn.max_height:g} mm; refused before slicing")
 
 
 def check_not_input(out, *inputs) -> None:
@@ -200,8 +320,6 @@ def check_not_input(out, *inputs) -> None:
     ------
     OutputError
     """
-    from .errors import OutputError
-
     o = Path(out).resolve()
     for src in inputs:
         if src is None:
@@ -210,3 +328,7 @@ def check_not_input(out, *inputs) -> None:
         if o == s or o in s.parents:
             what = "is the input" if o == s else "holds the input"
             raise OutputError(f"{out}: the output {what} {src}; choose another output")
+
+
+__all__ = ["run_slice", "write_stack", "plate_placement", "footprint_lower_bound", "refuse_off_plate",
+           "check_not_input"]

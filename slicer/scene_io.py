@@ -83,12 +83,12 @@ from typing import Any
 
 import numpy as np
 
-from .atomic import write_bytes
-from .errors import OutputError, SceneError
+from ._version import __version__
+from .errors import SceneError
+from .scene_3mf import load_3mf
+from .scene_write import FORMAT_VERSION, SUFFIXES, write_scene
 from .skeleton import DEFAULT_DEGREE, DEFAULT_SIGMA, Skeleton
 
-#: scene format version written and read by this module
-FORMAT_VERSION = 1
 #: accepted "units": (multiplier, divisor) converting to mm
 UNITS: dict[str, tuple[float, float]] = {
     "mm": (1.0, 1.0),
@@ -97,8 +97,6 @@ UNITS: dict[str, tuple[float, float]] = {
     "m": (1000.0, 1.0),
     "in": (25.4, 1.0),
 }
-#: file name suffixes and the format they select
-SUFFIXES = {".json": "json", ".obj": "obj"}
 
 _KEYS = ("skelslice", "units", "nodes", "segments", "radii", "segment_radii", "kernel")
 _KERNEL_KEYS = ("degree", "sigma")
@@ -147,8 +145,6 @@ def load_scene(path, radius: float | None = None) -> Skeleton:
     if radius is not None:
         _check_radius_argument(radius)
     if Path(src).suffix.lower() == ".3mf":  # 3MF Beam Lattice (read only)
-        from .scene_3mf import load_3mf
-
         return load_3mf(src, radius)
     fmt = SUFFIXES.get(Path(src).suffix.lower())
     if fmt is None:
@@ -164,39 +160,19 @@ def load_scene(path, radius: float | None = None) -> Skeleton:
 def save_scene(skel: Skeleton, path) -> None:
     """Write a scene atomically: JSON v1 for ``.json``, OBJ polylines for ``.obj``.
 
-    The file is first written to a temporary file in the same directory,
-    flushed and fsynced, then moved over ``path`` with :func:`os.replace`; on
-    any failure the temporary file is removed and ``path`` is untouched.
-
-    Parameters
-    ----------
-    skel : Skeleton
-    path : str or os.PathLike
+    See :func:`slicer.scene_write.write_scene`.
 
     Raises
     ------
+    TypeError
+        ``skel`` is not a :class:`Skeleton`.
     OutputError
-        Unknown suffix, unwritable location, a scene :func:`load_scene` would
-        reject (no segments), or a non-default kernel for OBJ (which cannot
-        store it: use ``.json``).
+        Unknown suffix, unwritable location, no segments, or a non-default
+        kernel for OBJ.
     """
-    dst = os.fspath(path)
-    if isinstance(dst, bytes):
-        dst = os.fsdecode(dst)
-    fmt = SUFFIXES.get(Path(dst).suffix.lower())
-    if fmt is None:
-        raise OutputError(
-            f"{dst}: unknown scene file type {Path(dst).suffix or '(no suffix)'!r}; "
-            f"use .json (scene v1) or .obj (polylines)")
     if not isinstance(skel, Skeleton):
         raise TypeError(f"save_scene expects a Skeleton, got {type(skel).__name__}")
-    if skel.n_segments == 0:
-        raise OutputError(f"{dst}: the scene has no segments; such a file could not be read back")
-    if fmt == "json":
-        data = (json.dumps(skel.to_dict(), allow_nan=False, separators=(", ", ": ")) + "\n").encode()
-    else:
-        data = _obj_text(skel, dst).encode()
-    write_bytes(dst, data, force=True)
+    write_scene(skel, path)
 
 
 # ----------------------------------------------------------------------------- reading helpers
@@ -385,8 +361,6 @@ def _skeleton_from_json(data, src: str, radius: float | None) -> Skeleton:
         raise SceneError(f'"skelslice" = {_show(version)} must be the integer format version '
                          f'{FORMAT_VERSION}', src)
     if version != FORMAT_VERSION:
-        from . import __version__
-
         raise SceneError(f'"skelslice" = {version}: scene format version {version} is not supported '
                          f'(skelslice {__version__} reads version {FORMAT_VERSION}); '
                          f'upgrade skelslice', src)
@@ -618,38 +592,6 @@ def _skeleton_from_obj(text: str, src: str, radius: float | None) -> Skeleton:
     default = float(radius) if radius is not None else math.nan
     vr = np.array([default if r is None else r for r in vradius], dtype=np.float64)
     return Skeleton(nodes, seg_arr, vr[seg_arr], source=src)
-
-
-def _fmt(x: float) -> str:
-    return repr(float(x))
-
-
-def _obj_text(skel: Skeleton, dst: str) -> str:
-    if skel.degree != DEFAULT_DEGREE or skel.sigma != DEFAULT_SIGMA:
-        raise OutputError(
-            f"{dst}: OBJ cannot store the kernel (degree {skel.degree}, sigma {skel.sigma}); "
-            f"save as .json, or use the default kernel (degree {DEFAULT_DEGREE}, sigma {DEFAULT_SIGMA})")
-    n = skel.n_nodes
-    node_r: list[float | None] = [None] * n
-    extra: dict[tuple[int, float], int] = {}
-    ends = np.zeros_like(skel.segments)
-    for s, ((a, b), (ra, rb)) in enumerate(zip(skel.segments.tolist(), skel.radii.tolist())):
-        for k, (i, r) in enumerate(((a, ra), (b, rb))):
-            if node_r[i] is None:
-                node_r[i] = r
-                ends[s, k] = i
-            elif node_r[i] == r:
-                ends[s, k] = i
-            else:  # another radius at the same node: a separate vertex, same point
-                ends[s, k] = extra.setdefault((i, r), n + len(extra))
-    out = ["# skelslice scene: OBJ polylines, units mm",
-           "# 'v x y z radius' (radius at this vertex), 'l i j' (one segment per line)"]
-    for p, r in zip(skel.nodes.tolist(), node_r):
-        out.append("v " + " ".join(_fmt(c) for c in p) + ("" if r is None else " " + _fmt(r)))
-    for (i, r) in extra:
-        out.append("v " + " ".join(_fmt(c) for c in skel.nodes[i].tolist()) + " " + _fmt(r))
-    out.extend(f"l {a + 1} {b + 1}" for a, b in ends.tolist())
-    return "\n".join(out) + "\n"
 
 
 __all__ = ["load_scene", "save_scene", "FORMAT_VERSION", "UNITS", "SUFFIXES"]

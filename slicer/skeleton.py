@@ -12,45 +12,9 @@ from typing import Any
 import numpy as np
 
 from .errors import SceneError
-
-#: default kernel degree n of k(d) = N (1 - (d/sigma)^2)^(n/2)
-DEFAULT_DEGREE = 6
-#: default support factor sigma (support radius = sigma * tau)
-DEFAULT_SIGMA = 2.0
-#: largest supported kernel degree (kernels use fixed-size scratch arrays)
-MAX_DEGREE = 16
-
-
-def kernel_normalisation(degree: int, sigma: float) -> float:
-    """Normalisation N that puts the iso-value 1 at distance tau of a long strut.
-
-    ``N = 1 / (sigma * B_m * (1 - 1/sigma^2)^((n+1)/2))`` with
-    ``B_m = 2^(2m+1) (m!)^2 / (2m+1)!`` and ``m = n/2`` (math.md §1.3).
-
-    Parameters
-    ----------
-    degree : int
-        Even kernel degree n >= 2.
-    sigma : float
-        Support factor, > 1.
-
-    Returns
-    -------
-    float
-
-    Examples
-    --------
-    >>> round(kernel_normalisation(6, 2.0), 10)
-    1.4968340312
-    """
-    m = degree // 2
-    b_m = 1.0
-    # B_m = prod_{k=1..m} 2k/(2k+1) * 2
-    for k in range(1, m + 1):
-        b_m *= (2.0 * k) / (2.0 * k + 1.0)
-    b_m *= 2.0
-    return 1.0 / (sigma * b_m * (1.0 - 1.0 / sigma**2) ** ((degree + 1) / 2.0))
-
+from .field import evaluate
+from .kernel import DEFAULT_DEGREE, DEFAULT_SIGMA, MAX_DEGREE, kernel_normalisation
+from .scene_write import scene_document, write_scene
 
 @dataclass(frozen=True, eq=False)
 class Skeleton:
@@ -218,8 +182,6 @@ class Skeleton:
         -------
         (k,) float64
         """
-        from .field import evaluate
-
         return evaluate(self, points)[0]
 
     def gradient(self, points) -> np.ndarray:
@@ -233,27 +195,16 @@ class Skeleton:
         -------
         (k, 3) float64, 1/mm
         """
-        from .field import evaluate
-
         return evaluate(self, points, gradient=True)[1]
 
     # ------------------------------------------------------------------ I/O
     def save(self, path) -> None:
         """Write the scene as JSON (version 1, ``segment_radii`` form), atomically."""
-        from .scene_io import save_scene
-
-        save_scene(self, path)
+        write_scene(self, path)
 
     def to_dict(self) -> dict[str, Any]:
-        """The scene as a JSON-ready dict (scene format version 1)."""
-        return {
-            "skelslice": 1,
-            "units": "mm",
-            "nodes": self.nodes.tolist(),
-            "segments": self.segments.tolist(),
-            "segment_radii": self.radii.tolist(),
-            "kernel": {"degree": self.degree, "sigma": self.sigma},
-        }
+        """The scene as a JSON-ready dict (scene format version 1, :func:`slicer.scene_write.scene_document`)."""
+        return scene_document(self)
 
 
 def _as_float_array(value, name: str, src: str | None) -> np.ndarray:

@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 
 from formats.printers import PrintSettings
 from slicer import Skeleton
-from slicer.antialias import box_filter, grey_from_coverage, output_grid, render
+from slicer.antialias import box_filter, grey_from_coverage, output_grid
+from slicer.antialias import output_layers as render
 from slicer.errors import GridError
 from slicer.grid import SliceGrid
 from slicer.slicing import slice_skeleton

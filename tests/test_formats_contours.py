@@ -340,11 +340,11 @@ def test_same_input_same_bytes(tmp_path, name):
 
 
 def test_layer_order_z_and_gaps(tmp_path):
-    with pytest.raises(ValueError, match="out of order"):
+    with pytest.raises(OutputError, match="out of order"):
         with CliWriter(tmp_path / "a.cli", GRID) as w:
             w.write_layer(2, GRID.origin[2] + 0.4, None)
             w.write_layer(1, GRID.origin[2] + 0.2, None)
-    with pytest.raises(ValueError, match="z = 0.3"):
+    with pytest.raises(OutputError, match="z = 0.3"):
         with CliWriter(tmp_path / "b.cli", GRID) as w:
             w.write_layer(0, 0.3, None)
     assert list(tmp_path.iterdir()) == []

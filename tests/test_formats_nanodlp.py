@@ -160,7 +160,7 @@ def test_pack_rgb_round_trip(h, w3, seed):
     assert rgb.shape == (h, w3, 3)
     assert np.array_equal(rgb[:, 0, :], img[:, :3]) and np.array_equal(rgb[:, -1, :], img[:, -3:])
     assert np.array_equal(unpack_rgb(rgb), img)
-    with pytest.raises(ValueError):
+    with pytest.raises(OutputError):
         pack_rgb(img[:, :-1])
 
 

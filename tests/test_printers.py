@@ -17,7 +17,7 @@ from PIL import Image
 from formats import WRITERS
 from formats.printers import PRINTERS, get_printer
 from slicer import Skeleton
-from slicer.errors import GridError
+from slicer.errors import GridError, OptionError
 from test_cli_slice import assert_refused, run
 
 
@@ -53,7 +53,7 @@ def test_table_has_the_required_printers():
 
 
 def test_unknown_printer_lists_the_names():
-    with pytest.raises(GridError, match="prusa-sl1s"):
+    with pytest.raises(OptionError, match="prusa-sl1s"):
         get_printer("photon-9000")
     assert get_printer(" Prusa-SL1S ").name == "prusa-sl1s"
 

@@ -155,4 +155,4 @@ def test_error_time_sweep_small(tmp_path):
 
 def test_cli_bench_needs_a_benchmark():
     res = CliRunner().invoke(main, ["bench"])
-    assert res.exit_code == 2 and "--error" in res.output
+    assert res.exit_code == 2 and "error, table1" in res.output

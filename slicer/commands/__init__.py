@@ -1,22 +1,11 @@
 """CLI commands, one module each. ``COMMANDS`` lists what :mod:`slicer.cli` registers."""
 from __future__ import annotations
 
-import importlib
+from . import bench, info, lattice, printers, render, validate
+from . import slice as slice_
 
-_MODULES = ["lattice", "info", "slice", "printers", "render", "validate", "bench"]
+#: the commands, in the order ``skelslice --help`` lists them
+COMMANDS = [lattice.command, info.command, slice_.command, printers.command, render.command, validate.command,
+            bench.command]
 
-
-def _load():
-    cmds = []
-    for name in _MODULES:
-        try:
-            mod = importlib.import_module(f"{__name__}.{name}")
-        except ModuleNotFoundError as exc:  # command not written yet
-            if exc.name == f"{__name__}.{name}":
-                continue
-            raise
-        cmds.append(mod.command)
-    return cmds
-
-
-COMMANDS = _load()
+__all__ = ["COMMANDS"]

@@ -1,70 +1,113 @@
-"""``skelslice bench``: benchmarks, one flag each (``--error``, ``--table1``)."""
+"""``skelslice bench``: benchmarks as subcommands (``error``, ``table1``).
+
+``skelslice bench --error ...`` and ``skelslice bench --table1 ...`` (the
+first form of this command) keep working: the flags select the subcommand.
+"""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
 
+from validation.bench import format_table as table1_table
+from validation.bench import table1
+from validation.error_time import format_table as error_table
+from validation.error_time import label, plot, sweep
+
+from ..atomic import write_bytes
+from ..errors import OptionError, OutputError, require
+
 
 def _bench_error(model, quick, repeat, threads):
-    from validation.error_time import format_table, label, plot, sweep
-
-    res = sweep(model, quick=quick, repeat=repeat, threads=threads,
+    res = sweep(model or "jellyfish", quick=quick, repeat=repeat, threads=threads,
                 progress=lambda r: click.echo(f"  {label(r)}: {r['seconds']:.3f} s, "
                                               f"{r['error_layer'] * 1e3:.3f} um", err=True))
-    click.echo(format_table(res))
+    click.echo(error_table(res))
     return res, plot
 
 
 def _bench_table1(model, quick, repeat, threads):
-    from validation.bench import format_table, table1
-
     models = (model,) if model else ("jellyfish", "microstructure")
     res = table1(models=models, layers=(128,) if quick else (512, 1024), threads=threads, repeat=repeat)
-    click.echo(format_table(res))
+    click.echo(table1_table(res))
     return res, None
 
 
-#: flag -> runner(model, quick, repeat, threads) -> (results, plotter or None);
-#: a new benchmark is one more runner here and one more flag below
+#: benchmark name -> runner(model, quick, repeat, threads) -> (results, plotter or None)
 BENCHMARKS = {"error": _bench_error, "table1": _bench_table1}
 
 
-@click.command("bench")
-@click.option("--error", "which", flag_value="error",
-              help="Error against run time for every method and a sweep of its knobs (validation/error_time.py).")
-@click.option("--table1", "which", flag_value="table1",
-              help="The paper's Table 1 protocol (validation/bench.py).")
-@click.option("--model", default=None, help="Sample model (default: jellyfish for --error, both for --table1).")
-@click.option("--quick", is_flag=True, help="A smaller sweep (minutes less; for a first look).")
-@click.option("--repeat", type=click.IntRange(min=1), default=1, show_default=True, help="Best of N runs.")
-@click.option("--threads", type=click.IntRange(min=1), default=None, help="Threads (default: all cores).")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the results here.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
-              help="Write the plot here (--error; needs matplotlib: pip install 'skelslice[plot]').")
-def command(which, model, quick, repeat, threads, json_path, plot_path):
-    """Run a benchmark and print its table; timings depend on the machine and its load."""
-    import json
+def _common(f):
+    for d in reversed([
+        click.option("--model", default=None, help="Sample model (default: jellyfish for error, both for table1)."),
+        click.option("--quick", is_flag=True, help="A smaller sweep (minutes less; for a first look)."),
+        click.option("--repeat", type=click.IntRange(min=1), default=1, show_default=True, help="Best of N runs."),
+        click.option("--threads", type=click.IntRange(min=1), default=None, help="Threads (default: all cores)."),
+        click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
+                     help="Write the results here."),
+    ]):
+        f = d(f)
+    return f
 
-    from slicer.errors import GridError, OutputError
 
-    if which is None:
-        raise GridError(f"choose a benchmark: {', '.join('--' + k for k in BENCHMARKS)}")
-    run = BENCHMARKS[which]
+_plot_option = click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
+                            help="Write the plot here (error only; needs matplotlib: pip install 'skelslice[plot]').")
+
+
+def run_benchmark(which, model, quick, repeat, threads, json_path, plot_path=None) -> None:
+    """Run benchmark ``which``; print its table, write the JSON and the plot (checked before any work)."""
+    if which not in BENCHMARKS:
+        raise OptionError(f"unknown benchmark {which!r}; choose one of {', '.join(BENCHMARKS)}")
     if plot_path is not None:
         if which != "error":
-            raise GridError("--plot is only available with --error")
-        try:
-            import matplotlib  # noqa: F401
-        except ImportError:
-            raise OutputError("--plot needs matplotlib: pip install 'skelslice[plot]'") from None
+            raise OptionError("--plot is only available with the error benchmark")
+        require("matplotlib", "plot", "--plot")
     for p in (json_path, plot_path):
         if p is not None and not Path(p).resolve().parent.is_dir():
             raise OutputError(f"{p}: the folder {Path(p).parent} does not exist")
-    res, plotter = run(model or ("jellyfish" if which == "error" else None), quick, repeat, threads)
+    res, plotter = BENCHMARKS[which](model, quick, repeat, threads)
     if json_path:
-        Path(json_path).write_text(json.dumps(res, indent=1) + "\n")
+        write_bytes(json_path, (json.dumps(res, indent=1) + "\n").encode(), force=True)
         click.echo(f"results -> {json_path}")
     if plot_path and plotter:
         plotter(res, plot_path)
         click.echo(f"plot -> {plot_path}")
+
+
+@click.group("bench", invoke_without_command=True)
+@click.option("--error", "which", flag_value="error", help="Same as `bench error`.")
+@click.option("--table1", "which", flag_value="table1", help="Same as `bench table1`.")
+@_common
+@_plot_option
+@click.pass_context
+def command(ctx, which, **options):
+    """Run a benchmark and print its table; timings depend on the machine and its load.
+
+    \b
+    skelslice bench error [--quick] [--json FILE] [--plot FILE.png]
+    skelslice bench table1 [--model NAME] [--repeat N]
+    """
+    if ctx.invoked_subcommand is not None:
+        if which is not None:
+            raise OptionError(f"give either --{which} or the `{ctx.invoked_subcommand}` subcommand, not both")
+        return
+    if which is None:
+        raise OptionError(f"choose a benchmark: {', '.join(BENCHMARKS)} "
+                          f"(e.g. `skelslice bench error --quick`)")
+    run_benchmark(which, **options)
+
+
+@command.command("error")
+@_common
+@_plot_option
+def error_command(**options):
+    """Error against run time for every method and a sweep of its knobs (validation/error_time.py)."""
+    run_benchmark("error", **options)
+
+
+@command.command("table1")
+@_common
+def table1_command(**options):
+    """The paper's Table 1 protocol (validation/bench.py)."""
+    run_benchmark("table1", **options)

@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import json
-import math
 
 import click
 import numpy as np
+
+from ..scene_io import load_scene
+from .options import positive
 
 #: an isolated segment shorter than this times its mean radius has no surface (math.md §1.5)
 MIN_ISOLATED_LENGTH = 0.688
@@ -130,17 +132,11 @@ def format_stats(path: str, stats: dict) -> str:
     return "\n".join(lines)
 
 
-def _positive(ctx, param, value):
-    if value is not None and not (math.isfinite(value) and value > 0):
-        raise click.BadParameter(f"must be a finite number > 0, got {value!r}")
-    return value
-
-
 @click.command("info")
 @click.argument("scene", type=click.Path(path_type=str))
-@click.option("--radius", type=float, default=None, callback=_positive, metavar="MM",
+@click.option("--radius", type=float, default=None, callback=positive, metavar="MM",
               help="Radius for segment ends the file gives none for (radii in the file win).")
-@click.option("--pixel-size", type=float, default=None, callback=_positive, metavar="MM",
+@click.option("--pixel-size", type=float, default=None, callback=positive, metavar="MM",
               help="Pixel size; warn about struts thinner than one pixel.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON object instead of text.")
 def command(scene: str, radius: float | None, pixel_size: float | None, as_json: bool) -> None:
@@ -150,8 +146,6 @@ def command(scene: str, radius: float | None, pixel_size: float | None, as_json:
     segments too short to have any surface, segments whose end balls nest,
     duplicate segments and unused nodes.
     """
-    from ..scene_io import load_scene
-
     skel = load_scene(scene, radius=radius)
     stats = scene_stats(skel, pixel_size)
     if as_json:

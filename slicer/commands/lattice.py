@@ -5,6 +5,7 @@ import click
 
 from ..errors import SceneError
 from ..lattice import check_positive, generate_lattice
+from ..scene_io import save_scene
 
 
 class _RadiusSpec(click.ParamType):
@@ -84,8 +85,6 @@ def command(cell_type, cells, cell_size, radius_spec, axis, origin, envelope_box
 
     Example: skelslice lattice octet --cells 4 4 4 --cell-size 5 --radius 0.4:0.8 -o octet.json
     """
-    from .. import save_scene
-
     if envelope_box and envelope_cylinder:
         raise click.UsageError("give at most one of --envelope-box and --envelope-cylinder")
     envelope = None

@@ -1,18 +1,18 @@
 """``skelslice printers``: the built-in printer profiles."""
 from __future__ import annotations
 
+import dataclasses
+import json
+
 import click
+
+from formats.printers import PRINTERS
 
 
 @click.command("printers")
 @click.option("--json", "as_json", is_flag=True, help="Print the table as JSON.")
 def command(as_json):
     """List the printer profiles usable with `slice --printer NAME`."""
-    import dataclasses
-    import json
-
-    from formats.printers import PRINTERS
-
     if as_json:
         click.echo(json.dumps({n: {**dataclasses.asdict(p), "pixel_size": list(p.pixel_size)}
                                for n, p in sorted(PRINTERS.items())}, indent=1))

@@ -3,7 +3,10 @@ from __future__ import annotations
 
 import click
 
-from slicer.render import CAMERAS, VIEWS
+from ..render import CAMERAS, VIEWS
+from ..render_output import run_render
+from ..scene_io import load_scene
+from .options import radius_option
 
 
 @click.command("render")
@@ -34,16 +37,13 @@ from slicer.render import CAMERAS, VIEWS
 @click.option("--bucket", type=click.IntRange(min=1), default=16, show_default=True,
               help="Screen bucket edge, pixels.")
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="Threads (default: all cores).")
-@click.option("--radius", type=float, default=None, help="Strut radius for OBJ scenes without radii, mm.")
+@radius_option
 @click.option("--force", is_flag=True, help="Replace existing outputs.")
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing on success.")
 def command(scene, out, size, view, camera, fov, eye, target, opacity, max_opacity, opaque, tolerance,
             roots_out, bisection, strict, transparent, bucket, threads, radius, force, quiet):
     """Render SCENE to a PNG: every crossing of every ray, shaded and
     composited front to back as semi-transparent layers."""
-    from slicer import load_scene
-    from slicer.render_output import run_render
-
     skel = load_scene(scene, radius=radius)
     st = run_render(skel, out, roots_out=roots_out, force=force, transparent=transparent, size=size,
                     view=view, camera=camera, fov=fov, eye=eye or None, target=target or None,

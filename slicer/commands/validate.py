@@ -1,26 +1,25 @@
 """``skelslice validate``: slice, compare with a meshed manifold3d reference, report."""
 from __future__ import annotations
 
+import json
 import sys
 
 import click
 
+from validation.validate import format_table, validate, write_report
+
+from ..atomic import check_destination
+from ..scene_io import load_scene
+from .options import grid_options, radius_option, trace_options
+
 
 @click.command("validate")
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--pixel-size", type=float, default=None,
-              help="Pixel pitch along x (and y), mm (default: --pixels over the support box).")
+@grid_options
 @click.option("--pixels", type=click.IntRange(min=2), default=512, show_default=True,
               help="Without --pixel-size: a PIXELS x PIXELS image over the model's support box.")
-@click.option("--pixel-size-y", type=float, default=None, help="Pixel pitch along y, mm.")
-@click.option("--layer-height", type=float, default=None, help="Layer height, mm (default: the pixel pitch).")
-@click.option("--bounds", type=float, nargs=6, default=None, metavar="X0 Y0 Z0 X1 Y1 Z1", help="Box to slice, mm.")
-@click.option("--method", type=click.Choice(["interval", "sampling", "segment"]), default="interval",
-              show_default=True, help="Tracing method.")
-@click.option("--bucket", type=click.IntRange(min=0), default=64, show_default=True, help="Bucket edge, px.")
-@click.option("--threads", type=click.IntRange(min=1), default=None, help="Threads (default: all cores).")
-@click.option("--strict", is_flag=True, help="Lipschitz bounds only (see `slice --strict`).")
-@click.option("--radius", type=float, default=None, help="Strut radius for OBJ scenes without radii, mm.")
+@trace_options
+@radius_option
 @click.option("--mesh-edge", type=float, default=None,
               help="Reference mesh grid spacing, mm (default: half the pixel pitch).")
 @click.option("--layers-checked", type=click.IntRange(min=1), default=8, show_default=True,
@@ -46,16 +45,8 @@ def command(scene, pixel_size, pixels, pixel_size_y, layer_height, bounds, metho
     Exit status: 0 if every check passes, 1 if a check or threshold fails,
     2 on invalid input.
     """
-    import json
-    from pathlib import Path
-
-    from slicer import load_scene
-    from validation.validate import format_table, validate, write_report
-
     if report_dir is not None:
-        from formats.base import check_destination
-
-        check_destination(Path(report_dir), force)   # before any work
+        check_destination(report_dir, force)   # before any work
     skel = load_scene(scene, radius=radius)
     rep = validate(skel, pixel_size=pixel_size, pixels=pixels, pixel_size_y=pixel_size_y, layer_height=layer_height,
                    bounds=bounds or None, method=method, bucket=bucket, threads=threads, strict=strict,
