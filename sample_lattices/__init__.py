@@ -18,7 +18,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable
 
-from slicer import SceneError, Skeleton
+from slicer.errors import SceneError
+from slicer.scene_io import load_scene, save_scene
+from slicer.skeleton import Skeleton
 
 from . import jellyfish, microstructure, small
 
@@ -46,15 +48,11 @@ def sample_path(name: str) -> Path:
 
 def load_sample(name: str) -> Skeleton:
     """Load the committed scene of sample ``name``."""
-    from slicer import load_scene
-
     return load_scene(sample_path(name))
 
 
 def write_samples(names=None) -> list[Path]:
     """Rebuild samples (all by default) and write their JSON files; returns the paths."""
-    from slicer import save_scene
-
     paths = [sample_path(name) for name in (names or SAMPLES)]  # check every name first
     for path in paths:
         save_scene(SAMPLES[path.stem](), path)

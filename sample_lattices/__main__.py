@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from slicer import SceneError
+from slicer.errors import SceneError
 
 from . import load_sample, write_samples
 

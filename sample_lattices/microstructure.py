@@ -8,7 +8,7 @@ tapered).
 """
 from __future__ import annotations
 
-from slicer import Skeleton
+from slicer.skeleton import Skeleton
 from slicer.lattice import generate_lattice
 
 CELLS = (6, 6, 5)

@@ -1,7 +1,7 @@
 """Small lattices for quick tests and examples (built with generate_lattice)."""
 from __future__ import annotations
 
-from slicer import Skeleton
+from slicer.skeleton import Skeleton
 from slicer.lattice import generate_lattice
 
 

@@ -18,7 +18,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator
 
-from .errors import GridError
+from .errors import GridError, OptionError, require
 
 #: executor names accepted by :func:`open_executor` (and ``--executor``)
 EXECUTORS = ("serial", "threads", "processes", "dask")
@@ -91,11 +91,11 @@ def executor_info(kind: str = "serial", workers: int | None = None,
 
 def _check(kind, workers, scheduler) -> None:
     if kind not in EXECUTORS:
-        raise GridError(f"unknown executor {kind!r}; choose one of {', '.join(EXECUTORS)}")
+        raise OptionError(f"unknown executor {kind!r}; choose one of {', '.join(EXECUTORS)}")
     if workers is not None and int(workers) < 1:
-        raise GridError(f"workers must be >= 1, got {workers}")
+        raise OptionError(f"workers must be >= 1, got {workers}")
     if scheduler and kind != "dask":
-        raise GridError(f"--scheduler needs --executor dask (got --executor {kind})")
+        raise OptionError(f"--scheduler needs --executor dask (got --executor {kind})")
 
 
 def _limit_threads() -> None:
@@ -149,10 +149,8 @@ def open_executor(kind: str = "serial", workers: int | None = None,
 
 
 def _open_dask(workers, scheduler):
-    try:
-        from distributed import Client, LocalCluster
-    except ImportError:
-        raise GridError("--executor dask needs Dask: pip install 'skelslice[dist]'") from None
+    distributed = require("distributed", "dist", "--executor dask")
+    Client, LocalCluster = distributed.Client, distributed.LocalCluster
     with contextlib.ExitStack() as stack:
         if scheduler:
             try:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from slicer import GridError
+from slicer import GridError, OptionError
 from slicer.cli import main
 from slicer.executors import SerialExecutor, executor_info, map_ordered, open_executor
 from slicer.job import run_slice
@@ -115,7 +115,7 @@ def test_map_ordered_reraises_task_errors_in_order():
     ("processes", None, "tcp://127.0.0.1:1", "--scheduler needs --executor dask"),
 ])
 def test_open_executor_refuses_bad_requests(kind, workers, scheduler, match):
-    with pytest.raises(GridError, match=match):
+    with pytest.raises(OptionError, match=match):
         with open_executor(kind, workers, scheduler):
             pass
 

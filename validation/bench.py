@@ -62,7 +62,7 @@ def table1(models=("jellyfish", "microstructure"), layers=(512, 1024), pixels=51
     """Run the Table 1 protocol; returns the results as a JSON-ready dict."""
     from sample_lattices import load_sample
     from slicer.grid import make_grid
-    from slicer.job import write_stack
+    from slicer.layers import write_stack
     from slicer._kernels.launch import numba_threads
     from slicer.slicing import trace
 

@@ -1,0 +1,222 @@
+"""The code base's shape: imports run one way, one implementation of each shared job.
+
+Walks the sources with :mod:`ast` (no imports are executed):
+
+* no import cycle among the project's modules, counting imports inside
+  functions and the names :mod:`slicer` loads on first use;
+* imports run one way: core <- outputs <- validation <- job and CLI
+  (:data:`LAYERS`);
+* no function-level import of the project's own modules;
+* Numba only in ``slicer/_kernels/`` and ``slicer/_jit.py``, thread counts
+  only in ``slicer/_kernels/launch.py``;
+* temporary files and renames (atomic publication) only in ``slicer/atomic.py``.
+"""
+from __future__ import annotations
+
+import ast
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("slicer", "formats", "validation", "sample_lattices")
+
+#: module name prefix -> layer; a module may import only modules of its own or a lower layer.
+#: The longest matching prefix wins.
+LAYERS = {
+    "slicer.job": 3, "slicer.jobspec": 3, "slicer.cli": 3, "slicer.config": 3, "slicer.commands": 3,
+    "slicer.__main__": 3,
+    "validation": 2,
+    "formats": 1, "sample_lattices": 1,
+    "slicer.antialias": 1, "slicer.contours": 1, "slicer.render_output": 1, "slicer.contour": 1,
+    "slicer.layers": 1,
+    "slicer.check": 1, "slicer.preview": 1,
+}
+#: every other slicer.* module is core (layer 0)
+NAMES = {0: "core", 1: "outputs", 2: "validation", 3: "job/CLI"}
+
+
+def _sources() -> dict[str, Path]:
+    files = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", *PACKAGES], cwd=ROOT, capture_output=True, text=True,
+                           check=True).stdout.split()
+    mods = {}
+    for f in files:
+        if not f.endswith(".py"):
+            continue
+        parts = Path(f).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        mods[name] = ROOT / f
+    return mods
+
+
+MODULES = _sources()
+
+
+def layer(mod: str) -> int:
+    if mod == "slicer":            # the package facade re-exports the job-level API
+        return 3
+    best, rank = "", 0
+    for prefix, r in LAYERS.items():
+        if (mod == prefix or mod.startswith(prefix + ".") or mod.startswith(prefix + "_")) and len(prefix) > len(best):
+            best, rank = prefix, r
+    if not best and mod.split(".")[0] != "slicer":
+        raise AssertionError(f"{mod}: no layer assigned")
+    return rank
+
+
+def _is_type_checking(node: ast.If) -> bool:
+    t = node.test
+    return (isinstance(t, ast.Name) and t.id == "TYPE_CHECKING") or \
+        (isinstance(t, ast.Attribute) and t.attr == "TYPE_CHECKING")
+
+
+def _targets(mod: str, node) -> list[str]:
+    """Project modules an import statement of ``mod`` loads."""
+    out = []
+    if isinstance(node, ast.Import):
+        names = [a.name for a in node.names]
+    else:
+        if node.level:
+            base = mod.split(".")
+            if MODULES[mod].name != "__init__.py":
+                base = base[:-1]
+            base = base[:len(base) - (node.level - 1)]
+            tgt = ".".join(base + ([node.module] if node.module else []))
+        else:
+            tgt = node.module or ""
+        names = [f"{tgt}.{a.name}" if f"{tgt}.{a.name}" in MODULES else tgt for a in node.names]
+    for n in names:
+        while n and n not in MODULES:
+            n = n.rpartition(".")[0]
+        if n and n != mod:
+            out.append(n)
+    return out
+
+
+def _imports(mod: str):
+    """(target, line, inside a function) for every project import of ``mod``."""
+    tree = ast.parse(MODULES[mod].read_text(), str(MODULES[mod]))
+    found = []
+
+    def visit(node, in_function):
+        if isinstance(node, ast.If) and _is_type_checking(node):
+            return                                   # annotations only: never executed
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            found.extend((t, node.lineno, in_function) for t in _targets(mod, node))
+        inner = in_function or isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda))
+        for child in ast.iter_child_nodes(node):
+            visit(child, inner)
+
+    visit(tree, False)
+    if mod == "slicer":                              # names loaded on first use (slicer.__getattr__)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "_LAZY" for t in node.targets):
+                found.extend((ast.literal_eval(v), node.lineno, False) for v in node.value.values)
+    return found
+
+
+GRAPH = {m: _imports(m) for m in MODULES}
+
+
+def test_the_walk_sees_the_known_edges():
+    """Guard the walker itself: it must see module-level, relative and lazy imports."""
+    edges = {m: {t for t, _, _ in GRAPH[m]} for m in GRAPH}
+    assert "slicer.skeleton" in edges["slicer.scene_io"]
+    assert "slicer.errors" in edges["formats.base"] or "slicer.atomic" in edges["formats.base"]
+    assert "slicer.job" in edges["slicer"]
+
+
+def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    index, low, stack, on, out = {}, {}, [], set(), []
+    counter = [0]
+
+    def strong(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in sorted(edges.get(v, ())):
+            if w not in index:
+                strong(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(edges):
+        if v not in index:
+            strong(v)
+    return out
+
+
+def test_no_import_cycles():
+    edges = {m: {t for t, _, _ in GRAPH[m]} for m in GRAPH}
+    assert _cycles(edges) == []
+
+
+def test_cycle_finder_finds_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_imports_run_one_way():
+    bad = [f"{m} ({NAMES[layer(m)]}) imports {t} ({NAMES[layer(t)]}) at line {line}"
+           for m, items in GRAPH.items() for t, line, _ in items if layer(t) > layer(m)]
+    assert bad == []
+
+
+def test_no_function_level_imports_of_project_modules():
+    bad = [f"{MODULES[m].relative_to(ROOT)}:{line}: imports {t} inside a function"
+           for m, items in GRAPH.items() for t, line, inside in items if inside]
+    assert bad == []
+
+
+def _names_used(path: Path):
+    """(dotted name, line) of every import and every ``a.b`` attribute use in a file."""
+    tree = ast.parse(path.read_text(), str(path))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            yield from ((a.name, node.lineno) for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and not node.level:
+            yield node.module or "", node.lineno
+            yield from ((f"{node.module}.{a.name}", node.lineno) for a in node.names)
+        elif isinstance(node, ast.Attribute):
+            base = node.value.id if isinstance(node.value, ast.Name) else "?"
+            yield f"{base}.{node.attr}", node.lineno
+
+
+def _matches(name: str, needle: str) -> bool:
+    return name == needle or name.startswith(needle + ".") or name.endswith("." + needle.rpartition(".")[2]) \
+        and "." not in needle
+
+
+@pytest.mark.parametrize("needle, allowed", [
+    ("numba", ("slicer/_kernels/", "slicer/_jit.py")),
+    ("set_num_threads", ("slicer/_kernels/launch.py",)),
+    ("tempfile.mkstemp", ("slicer/atomic.py",)),
+    ("tempfile.mkdtemp", ("slicer/atomic.py",)),
+    ("os.replace", ("slicer/atomic.py",)),         # publication (rename over the target) is atomic.py's job
+    ("os.rename", ("slicer/atomic.py",)),
+])
+def test_one_place_for(needle, allowed):
+    bad = [f"{path.relative_to(ROOT)}:{line}: {name}"
+           for path in MODULES.values() if not str(path.relative_to(ROOT)).startswith(allowed)
+           for name, line in _names_used(path) if _matches(name, needle)]
+    assert bad == []
+
+
+def test_one_place_for_sees_uses():
+    """Guard the matcher: it must catch the forms the rules are about."""
+    assert _matches("numba.prange", "numba") and _matches("numba", "numba")
+    assert _matches("numba.set_num_threads", "set_num_threads")
+    assert _matches("os.replace", "os.replace") and not _matches("s.replace", "os.replace")
+    assert not _matches("numbagg", "numba")
