@@ -6,7 +6,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .checks import positive_number
+from .checks import fmt_num, positive_number
 from .errors import GridError
 
 #: refuse jobs larger than this many voxels before any work starts
@@ -77,6 +77,24 @@ def _positive(name: str, value) -> float:
     return positive_number(value, name, GridError)
 
 
+#: coordinates may be at most this many times the smallest grid step: float64 then keeps
+#: about 7 significant digits below the step (eps x 1e9 = 1.1e-7), which the tracer's
+#: exact classification of voxel centres and the span tolerances rely on (docs/cli.md)
+MAX_RESOLUTION_RATIO = 1e9
+
+
+def _check_resolution(lo, hi, steps, what: str) -> None:
+    """Refuse boxes whose coordinates or extent float64 cannot resolve at the grid steps."""
+    step = min(steps)
+    reach = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
+    extent = float(np.max(np.asarray(hi) - np.asarray(lo)))
+    if not (math.isfinite(reach) and math.isfinite(extent)) or max(reach, extent) > MAX_RESOLUTION_RATIO * step:
+        raise GridError(
+            f"{what} reaches {fmt_num(reach)} mm from the origin and spans {fmt_num(extent)} mm, more than "
+            f"{MAX_RESOLUTION_RATIO:.0e} grid steps of {fmt_num(step)} mm: float64 cannot place the voxel "
+            f"centres exactly; move the model near the origin or use a larger pixel size or layer height")
+
+
 def make_grid(support_box: np.ndarray, pixel_size: float, pixel_size_y: float | None = None,
               layer_height: float | None = None, bounds=None) -> SliceGrid:
     """Build the grid of a job.
@@ -99,8 +117,9 @@ def make_grid(support_box: np.ndarray, pixel_size: float, pixel_size_y: float | 
     Raises
     ------
     GridError
-        Non-positive or non-finite sizes, an empty box, or more than
-        ``MAX_VOXELS`` voxels.
+        Non-positive or non-finite sizes, an empty box, more than
+        ``MAX_VOXELS`` voxels, or coordinates beyond ``MAX_RESOLUTION_RATIO``
+        grid steps.
     """
     px = _positive("pixel size", pixel_size)
     py = _positive("pixel size y", pixel_size_y) if pixel_size_y is not None else px
@@ -112,26 +131,24 @@ def make_grid(support_box: np.ndarray, pixel_size: float, pixel_size_y: float | 
         lo, hi = b[:3], b[3:]
         if np.any(hi <= lo):
             raise GridError(f"bounds must have X1 > X0, Y1 > Y0, Z1 > Z0, got {b.tolist()}")
-        w = int(math.ceil((hi[0] - lo[0]) / px - 1e-9))
-        hh = int(math.ceil((hi[1] - lo[1]) / py - 1e-9))
-        k = int(math.ceil((hi[2] - lo[2]) / h - 1e-9))
+        _check_resolution(lo, hi, (px, py, h), "the --bounds box")
+        counts = [math.ceil((hi[a] - lo[a]) / d - 1e-9) for a, d in enumerate((px, py, h))]
         origin = (lo[0] + 0.5 * px, hi[1] - 0.5 * py, lo[2] + 0.5 * h)
     else:
         lo, hi = support_box
-        i0 = math.floor(lo[0] / px) - 1
-        i1 = math.ceil(hi[0] / px) + 1
-        j0 = math.floor(lo[1] / py) - 1
-        j1 = math.ceil(hi[1] / py) + 1
-        k0 = math.floor(lo[2] / h) - 1
-        k1 = math.ceil(hi[2] / h) + 1
-        w, hh, k = i1 - i0 + 1, j1 - j0 + 1, k1 - k0 + 1
+        _check_resolution(lo, hi, (px, py, h), "the model")
+        i0, i1 = math.floor(lo[0] / px) - 1, math.ceil(hi[0] / px) + 1
+        j0, j1 = math.floor(lo[1] / py) - 1, math.ceil(hi[1] / py) + 1
+        k0, k1 = math.floor(lo[2] / h) - 1, math.ceil(hi[2] / h) + 1
+        counts = [i1 - i0 + 1, j1 - j0 + 1, k1 - k0 + 1]
         origin = (i0 * px, j1 * py, k0 * h)
+    w, hh, k = (int(c) for c in counts)
     n = float(w) * float(hh) * float(k)
     if n > MAX_VOXELS:
         raise GridError(
-            f"the grid would have {w} x {hh} x {k} = {n:.3g} voxels (limit {MAX_VOXELS:.0e}); "
-            f"use a larger pixel size or layer height")
+            f"the grid would have {fmt_num(w)} x {fmt_num(hh)} x {fmt_num(k)} = {n:.3g} voxels "
+            f"(limit {MAX_VOXELS:.0e}); use a larger pixel size or layer height")
     return SliceGrid(tuple(float(v) for v in origin), (px, py), h, w, hh, k)
 
 
-__all__ = ["SliceGrid", "make_grid", "MAX_VOXELS"]
+__all__ = ["SliceGrid", "make_grid", "MAX_VOXELS", "MAX_RESOLUTION_RATIO"]
