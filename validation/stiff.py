@@ -42,7 +42,6 @@ import inspect
 import itertools
 import json
 import math
-import platform
 import sys
 import time
 from dataclasses import dataclass, field
@@ -51,6 +50,7 @@ from typing import Callable
 
 import numpy as np
 
+from . import machine
 from . import reference_field as ref
 
 #: voxels with |F - 1| at most this are not counted as mismatches (summation order)
@@ -612,7 +612,7 @@ def run_case(case: Case, fast: bool, seed: int = 0) -> dict:
             except SceneError as exc:
                 msg = str(exc)
                 ok = all(e in msg for e in expect)
-                refused.append({"message": msg, "ok": ok})
+                refused.append({"message": machine.portable(msg), "ok": ok})
                 if not ok:
                     problems.append(f"refused with an unexpected message: {msg}")
             else:
@@ -756,10 +756,9 @@ def main(argv=None) -> int:
     if args.json:
         import numba
 
-        out = {"command": "python -m validation.stiff" + (" --fast" if args.fast else "")
-               + (" --cases " + " ".join(args.cases) if args.cases else ""),
-               "machine": platform.platform(), "python": platform.python_version(),
-               "threads": numba.get_num_threads(), "seconds": total, "cases": rows}
+        out = {"command": machine.command_line("python -m validation.stiff", argv),
+               "machine": machine.describe(), "threads": numba.get_num_threads(), "seconds": total,
+               "cases": rows}
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(args.json).with_suffix(".json.tmp")
         tmp.write_text(json.dumps(out, indent=1))

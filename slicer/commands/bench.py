@@ -63,6 +63,12 @@ def command(which, model, quick, repeat, threads, json_path, plot_path):
             raise OutputError(f"{p}: the folder {Path(p).parent} does not exist")
     res, plotter = run(model or ("jellyfish" if which == "error" else None), quick, repeat, threads)
     if json_path:
+        from validation.machine import command_line
+
+        args = [f"--{which}"] + (["--model", model] if model else []) + (["--quick"] if quick else []) \
+            + (["--repeat", str(repeat)] if repeat != 1 else []) + (["--threads", str(threads)] if threads else []) \
+            + ["--json", json_path] + (["--plot", plot_path] if plot_path else [])
+        res = {"command": command_line("skelslice bench", args), **res}
         Path(json_path).write_text(json.dumps(res, indent=1) + "\n")
         click.echo(f"results -> {json_path}")
     if plot_path and plotter:
