@@ -25,7 +25,7 @@ def kernel_normalisation(degree: int, sigma: float) -> float:
     """Normalisation N that puts the iso-value 1 at distance tau of a long strut.
 
     ``N = 1 / (sigma * B_m * (1 - 1/sigma^2)^((n+1)/2))`` with
-    ``B_m = 2^(2m+1) (m!)^2 / (2m+1)!`` and ``m = n/2`` (math.md §1.3).
+    ``B_m = 2^(2m+1) (m!)^2 / (2m+1)!`` and ``m = n/2`` (docs/math.md §1.3).
 
     Parameters
     ----------
@@ -57,7 +57,7 @@ class Skeleton:
     """Segments with linearly varying radius, blended by summation.
 
     The solid is ``{p : F(p) >= 1}`` with ``F`` the sum over segments of the
-    scale-invariant integral field (math.md §1).
+    scale-invariant integral field (docs/math.md §1).
 
     Parameters
     ----------

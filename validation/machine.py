@@ -104,7 +104,7 @@ def portable(text: str, root: Path | None = None) -> str:
 
     Examples
     --------
-    >>> portable("--json /tmp/run3/out.json --scheduler tcp://10.0.0.5:8786")
+    >>> portable("--json /data/run3/out.json --scheduler tcp://10.0.0.5:8786")
     '--json out.json --scheduler tcp://10.0.0.5:8786'
     >>> portable(str(ROOT / "benchmarks" / "results" / "x.json"))
     'benchmarks/results/x.json'
@@ -136,7 +136,7 @@ def command_line(prog: str, argv=None) -> str:
 
     Examples
     --------
-    >>> command_line("python -m validation.stiff", ["--json", "/tmp/x/stiff.json", "--fast"])
+    >>> command_line("python -m validation.stiff", ["--json", "/data/x/stiff.json", "--fast"])
     'python -m validation.stiff --json stiff.json --fast'
     """
     args = list(sys.argv[1:] if argv is None else argv)
