@@ -450,7 +450,7 @@ def test_wide_random_backward_stable():
     (2, 2.0, REL), (4, 2.0, REL), (8, 2.0, REL), (12, 2.0, REL), (6, 1.5, REL), (6, 3.0, REL), (4, 3.0, REL),
     # n = 16: the power-basis sum Σ ρ_j J_j of R(y)^8 cancels by up to ~1e7
     # (R = y(1 − y/4) on [0, 4] mid-strut); ~1e-9 is what the closed form can
-    # give at this degree.  Reported to the lead; not a default setting.
+    # give at this degree, a known limit of this non-default kernel (docs/math.md §2.6.4).
     (16, 2.0, 5e-9),
 ])
 def test_other_kernels(degree, sigma, rel):

@@ -24,6 +24,7 @@ _ORGANISATION = [
     r"\bthe" + r"\s+issue\s+notes",
     r"\bbeyond" + r"\s+the\s+brief",
     r"\bthe" + r"\s+brief\b",
+    r"\bthe" + r"\s+lead\b",
 ]
 _LOCAL_PATH = re.compile(r"(?<![\w.-])/(?:" + "tmp" + "|" + "work" + "|" + "root" + r")/")
 _CITATION = re.compile(r"docs/([A-Za-z0-9_-]+\.md)\s*((?:§\s*\d+(?:\.\d+)*(?:\s*(?:,|and|–|-|…|\.\.\.)\s*)?)+)")
