@@ -23,11 +23,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 
 import numpy as np
+
+from validation import machine
 
 
 def bcc_lattice(nx=8, ny=8, nz=6, cell=5.0, r_bottom=0.35, r_top=0.70, centre_factor=1.2):
@@ -169,8 +170,7 @@ def main(argv=None) -> int:
 
     print(f"scene: {skel.n_segments} struts, {skel.n_nodes} nodes; grid {grid.dims.tolist()} cells of "
           f"{np.round(grid.cell, 3).tolist()} mm, {grid.ids.size} binned entries")
-    print(f"numba {numba.__version__}, on-disk cache {'on' if args.cache else 'off'}, "
-          f"{platform.processor() or platform.machine()}, {os.cpu_count()} cpus")
+    print(f"on-disk cache {'on' if args.cache else 'off'}; {machine.summary()}")
     print(f"import slicer+numba {t_import:.2f} s | grid build (first call, incl. JIT of binning) "
           f"{t_grid_first:.2f} s | field first call (1,000 pts, incl. JIT) {t_first:.2f} s | "
           f"steady {t_steady * 1e3:.1f} ms -> JIT ~{t_first - t_steady:.2f} s")
@@ -184,9 +184,11 @@ def main(argv=None) -> int:
               f"{r['pair_evals_per_s']:>13.3e} {r['supported_share']:>9.1%}")
     if args.json:
         out = {
+            "command": machine.command_line("python benchmarks/field_bench.py", argv),
+            "machine": machine.describe(),
             "scene": {"struts": skel.n_segments, "nodes": skel.n_nodes, "grid_dims": grid.dims.tolist(),
                       "cell_mm": grid.cell.tolist()},
-            "numba": numba.__version__, "cache": bool(args.cache), "cpus": os.cpu_count(),
+            "cache": bool(args.cache),
             "jit": {"import_s": t_import, "grid_first_s": t_grid_first, "field_first_call_s": t_first,
                     "field_steady_s": t_steady, "jit_estimate_s": t_first - t_steady},
             "rows": rows,

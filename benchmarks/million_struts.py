@@ -27,14 +27,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import platform
 import resource
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
+
+from validation import machine
 
 STRUTS_PER_CELL = 8   # bcc: the body centre joined to the 8 corners
 
@@ -79,7 +78,6 @@ def main(argv=None) -> dict:
     ap.add_argument("--json", default=None, help="also write the result here")
     args = ap.parse_args(argv)
 
-    from slicer import __version__
     from slicer.executors import open_executor
     from slicer.job import run_slice
     from slicer.lattice import generate_lattice
@@ -116,7 +114,7 @@ def main(argv=None) -> dict:
     size = out.stat().st_size if out.is_file() else sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
     result = {
         "benchmark": "million_struts",
-        "command": "python benchmarks/million_struts.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "command": machine.command_line("python benchmarks/million_struts.py", argv),
         "struts": skel.n_segments, "cells": [nx, ny, nz], "cell_mm": cell, "radius_mm": radius,
         "width": summary["width"], "height": summary["height"], "layers": summary["layers"],
         "pixel_size_mm": [px, py], "layer_height_mm": h,
@@ -129,7 +127,7 @@ def main(argv=None) -> dict:
         "evaluations": summary.get("evaluations"),
         "peak_rss_bytes": peak,
         "peak_within_budget": budget is None or peak["self"] + peak["children"] <= budget,
-        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "skelslice": __version__},
+        "machine": machine.describe(),
     }
     if not (args.keep or args.out):
         shutil.rmtree(tmp, ignore_errors=True)

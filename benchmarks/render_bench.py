@@ -16,17 +16,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
-import sys
 import time
+
+from validation import machine
 
 PAPER_MS = {"jellyfish": 431.4, "microstructure": 1037.1}
 
 
 def run(models, size, threads, opacity, max_opacity):
-    import numba
-
     from sample_lattices import load_sample
     from slicer.render import render
 
@@ -59,9 +56,7 @@ def run(models, size, threads, opacity, max_opacity):
                      "hermite_refine_evaluations": herm["refine_evaluations"]})
         print(_line(rows[-1]), flush=True)
     return {"size": [size, size], "view": "iso", "opacity": opacity, "max_opacity": max_opacity,
-            "jit_seconds": jit, "numba": numba.__version__, "cpu_count": os.cpu_count(),
-            "machine": platform.processor() or platform.machine(), "python": sys.version.split()[0],
-            "paper_gpu_ms": PAPER_MS, "rows": rows}
+            "jit_seconds": jit, "machine": machine.describe(), "paper_gpu_ms": PAPER_MS, "rows": rows}
 
 
 def _line(r):
@@ -108,6 +103,7 @@ def main(argv=None):
     ap.add_argument("--max-opacity", type=float, default=0.99)
     a = ap.parse_args(argv)
     out = run(a.models, a.size, a.threads, a.opacity, a.max_opacity)
+    out = {"command": machine.command_line("python benchmarks/render_bench.py", argv), **out}
     print()
     print(summary(out))
     if a.json:

@@ -1,6 +1,6 @@
 """Elegoo GOO (``.goo``): big-endian header, RLE layers with checksums.
 
-Layout (Elegoo's open spec V1.2; formats.md §2.1; every multi-byte field
+Layout (Elegoo's open spec V1.2; docs/formats.md §2.1; every multi-byte field
 big-endian):
 
 * header, 195 477 bytes: version ``V3.0``, magic, software/printer strings,

@@ -1,6 +1,6 @@
 """NanoDLP archives (``.nanodlp``): JSON manifests plus one PNG per layer.
 
-A zip (docs.nanodlp.com/manual/format; formats.md §2.2) holding:
+A zip (docs.nanodlp.com/manual/format; docs/formats.md §2.2) holding:
 
 * ``1.png`` ... ``N.png``: the layers, 1-based, no zero padding. NanoDLP's
   mono-LCD convention (UVtools' "NanoDLP (Mono)", mslicer/``msla_format``):

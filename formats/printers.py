@@ -13,7 +13,7 @@ Native images
 -------------
 Printer files store what the LCD shows. :meth:`Printer.to_native` turns a
 plate image into that layout with PrusaSlicer's raster transform
-(``SL1Archive::create_raster`` / ``RasterBase::Trafo``; formats.md §1.2):
+(``SL1Archive::create_raster`` / ``RasterBase::Trafo``; docs/formats.md §1.2):
 a portrait display swaps X and Y, ``mirror_x' = portrait XOR mirror_x``,
 ``mirror_y' = not mirror_y``, raster row 0 at the top. For the SL1S
 (portrait, mirror_x) that gives column = Y/py and row = 2560 - X/px, the

@@ -1,6 +1,6 @@
 """Prusa SL1 / SL1S archives (``.sl1``, ``.sl1s``).
 
-A zip (formats.md §1) with:
+A zip (docs/formats.md §1) with:
 
 * ``config.ini``: what the printer firmware reads (``jobDir``, ``expTime``,
   ``expTimeFirst``, ``layerHeight``, ``numFade``, ``numFast``, ``numSlow``,
@@ -99,7 +99,7 @@ class Sl1Writer(ZipArchiveWriter):
         self._k += 1
 
     def config_ini(self) -> dict:
-        """The ``config.ini`` keys (formats.md §1.1)."""
+        """The ``config.ini`` keys (docs/formats.md §1.1)."""
         s, p = self.settings, self.printer
         n = self._k
         px, py = p.pixel_size

@@ -1,4 +1,4 @@
-"""Per-bucket primitive lists along the print direction (EG22 §4, math.md §3.4).
+"""Per-bucket primitive lists along the print direction (EG22 §4, docs/math.md §3.4).
 
 The image is cut into square buckets of B x B pixel columns. Each bucket
 lists the segments whose support footprint touches it, sorted by where their

@@ -53,7 +53,7 @@ def support_boxes(skel: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned boxes of each segment's support (union of its end balls).
 
     The support of a segment is the round cone hull of the balls of radius
-    ``sigma * tau`` at its ends (math.md §3.2), so these boxes are tight.
+    ``sigma * tau`` at its ends (docs/math.md §3.2), so these boxes are tight.
 
     Returns
     -------

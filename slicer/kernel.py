@@ -13,7 +13,7 @@ def kernel_normalisation(degree: int, sigma: float) -> float:
     """Normalisation N that puts the iso-value 1 at distance tau of a long strut.
 
     ``N = 1 / (sigma * B_m * (1 - 1/sigma^2)^((n+1)/2))`` with
-    ``B_m = 2^(2m+1) (m!)^2 / (2m+1)!`` and ``m = n/2`` (math.md §1.3).
+    ``B_m = 2^(2m+1) (m!)^2 / (2m+1)!`` and ``m = n/2`` (docs/math.md §1.3).
 
     Parameters
     ----------

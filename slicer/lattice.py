@@ -8,7 +8,7 @@ at least one strut and no strut appears twice. Radii are defined per node
 a node have the same radius there and graded struts are tapered.
 
 The result is a :class:`~slicer.skeleton.Skeleton`; its surface is the SIIS
-iso-surface ``F = 1``. Note (math.md §1.5) that free strut ends extend only
+iso-surface ``F = 1``. Note (docs/math.md §1.5) that free strut ends extend only
 about ``0.25 * radius`` past their end node, and that an isolated strut
 shorter than ``0.688 * radius`` has no surface at all.
 """

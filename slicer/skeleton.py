@@ -16,12 +16,13 @@ from .field import evaluate
 from .kernel import DEFAULT_DEGREE, DEFAULT_SIGMA, MAX_DEGREE, kernel_normalisation
 from .scene_write import scene_document, write_scene
 
+
 @dataclass(frozen=True, eq=False)
 class Skeleton:
     """Segments with linearly varying radius, blended by summation.
 
     The solid is ``{p : F(p) >= 1}`` with ``F`` the sum over segments of the
-    scale-invariant integral field (math.md §1).
+    scale-invariant integral field (docs/math.md §1).
 
     Parameters
     ----------

@@ -2,9 +2,9 @@
 
 What is checked (n = 6, σ = 2, N = 1.4968340312323631 unless said otherwise):
 
-* math.md §9 reference vectors through the public API.
+* docs/math.md §9 reference vectors through the public API.
 * > 13,000 random single-segment configurations, including every stiff family
-  of math.md §2.6, against extended-precision Gauss–Legendre quadrature of the
+  of docs/math.md §2.6, against extended-precision Gauss–Legendre quadrature of the
   definition.  Error measure (stated once, used everywhere):
 
       |f − f_ref| ≤ 1e-10 · |f_ref|   where |f_ref| ≥ 1e-12,
@@ -26,7 +26,7 @@ What is checked (n = 6, σ = 2, N = 1.4968340312323631 unless said otherwise):
   Everywhere else the 1e-10 relative bound is the binding one.
 * gradient against the reference and against central differences;
 * scale invariance, the long-strut iso-value and slope, the free-end and
-  short-segment facts of math.md §1.5, the cone iso-radius;
+  short-segment facts of docs/math.md §1.5, the cone iso-radius;
 * a multi-segment scene through the support grid against the brute-force sum.
 """
 from __future__ import annotations
@@ -162,7 +162,7 @@ def gen_generic(rng, k):
 
 
 def gen_near_constant(rng, k):
-    """relative radius difference ±1e-12 … ±1e-4 (math.md §2.6.1)."""
+    """relative radius difference ±1e-12 … ±1e-4 (docs/math.md §2.6.1)."""
     eps = rng.choice([-1, 1], k) * 10 ** rng.uniform(-12, -4, k)
     ta = np.exp(rng.uniform(-0.5, 0.5, k))
     tb = ta * (1 + eps)
@@ -195,7 +195,7 @@ def gen_cone_tips(rng, k):
 
 
 def gen_nested(rng, k):
-    """one end ball inside the other: σ|τ1 − τ0| > L (E < 0 in math.md §2.2)."""
+    """one end ball inside the other: σ|τ1 − τ0| > L (E < 0 in docs/math.md §2.2)."""
     thick = 1 + np.exp(rng.uniform(np.log(0.05), np.log(10), k))
     L = rng.uniform(0.02, 0.98, k) * SIG * (thick - 1)
     ta, tb = _orient(rng, np.ones(k), thick)
@@ -333,7 +333,7 @@ def evaluated():
 
 
 # --------------------------------------------------------------------------- §9 vectors
-# p, a, b, τ0, τ1, f, ∇f (as printed in math.md §9: the gradient is checked to the digits given)
+# p, a, b, τ0, τ1, f, ∇f (as printed in docs/math.md §9: the gradient is checked to the digits given)
 VECTORS = [
     ((0.1, 0, 0.5), (0, 0, 0), (0, 0, 1), 0.1, 0.1, "1.0", ("-23.3333333333", "0", "0")),
     ((0.5, 0.3, 0.1), (0, 0, 0), (1, 0, 0), 0.2, 0.4, "0.925672319856568",
@@ -450,7 +450,7 @@ def test_wide_random_backward_stable():
     (2, 2.0, REL), (4, 2.0, REL), (8, 2.0, REL), (12, 2.0, REL), (6, 1.5, REL), (6, 3.0, REL), (4, 3.0, REL),
     # n = 16: the power-basis sum Σ ρ_j J_j of R(y)^8 cancels by up to ~1e7
     # (R = y(1 − y/4) on [0, 4] mid-strut); ~1e-9 is what the closed form can
-    # give at this degree.  Reported to the lead; not a default setting.
+    # give at this degree, a known limit of this non-default kernel (docs/math.md §2.6.4).
     (16, 2.0, 5e-9),
 ])
 def test_other_kernels(degree, sigma, rel):
@@ -607,7 +607,7 @@ def test_free_end_surface_is_0_2501_tau_past_the_end(tau):
     L = 20 * tau
     sk = Skeleton([[0, 0, 0], [0, 0, L]], [[0, 1]], [[tau, tau]])
     x = _bisect(lambda e: sk.field([[0, 0, L + e * tau]])[0], 0.0, 1.0)
-    assert abs(x - 0.2501) <= 0.5e-4, x          # math.md §1.5: 0.2501 τ (4 digits)
+    assert abs(x - 0.2501) <= 0.5e-4, x          # docs/math.md §1.5: 0.2501 τ (4 digits)
     x0 = _bisect(lambda e: sk.field([[0, 0, -e * tau]])[0], 0.0, 1.0)
     assert abs(x0 - x) <= 1e-12
 
@@ -631,10 +631,10 @@ def test_short_segments_are_thin():
         assert abs(r - r_md) <= 0.5e-3, (L, r)
 
 
-# Iso-radius / τ(z) on a long cone τ = δ z (apex at the origin).  math.md §1.5
-# prints 1.0878 (δ = 0.3) and 1.1192 (δ = 0.4): those two are wrong.  The
-# values below were checked by direct mpmath quadrature of the infinite cone
-# (f(1.0878·τ) = 1.0034, f(1.1192·τ) = 1.1200 there, vs 1 ± 1e-14 for these).
+# Iso-radius / τ(z) on a long cone τ = δ z (apex at the origin), docs/math.md §1.5.
+# The values below were checked by direct mpmath quadrature of the infinite cone
+# (f = 1 ± 1e-14 at these radii; the nearby 1.0878 for δ = 0.3 and 1.1192 for
+# δ = 0.4 would give f = 1.0034 and 1.1200 there).
 CONE = [(0.05, 1.0022), (0.1, 1.0087), (0.2, 1.0365), (0.3, 1.0895), (0.4, 1.1837)]
 
 

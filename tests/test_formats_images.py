@@ -1,9 +1,9 @@
 """Image-stack formats read back by independent readers: zip, SL1/SL1S, GOO.
 
-* GOO: a decoder written here from Elegoo's spec (formats.md §2.1), checking
+* GOO: a decoder written here from Elegoo's spec (docs/formats.md §2.1), checking
   every header offset, record, checksum and pixel; plus the ``goo`` crate
   checker (``tests/readers``, built by the ``checker`` fixture where cargo exists).
-* SL1/SL1S: every reader rule of formats.md §1.3 (PrusaSlicer importer,
+* SL1/SL1S: every reader rule of docs/formats.md §1.3 (PrusaSlicer importer,
   Prusa firmware, UVtools) checked on our archives; and, when the Debian
   ``prusa-slicer`` package is installed, ``prusa-slicer --load
   prusaslicer.ini`` accepts our profile (and rejects a corrupted one).
@@ -236,7 +236,7 @@ def _ini(text: str) -> dict:
 @pytest.mark.parametrize("name, model, printer", [("e.sl1s", "SL1S", "prusa-sl1s"), ("e.sl1", "SL1", "prusa-sl1"),
                                                   ("aa.sl1s", "SL1S", "prusa-sl1s")])
 def test_sl1_reader_rules(jobs, name, model, printer):
-    """formats.md §1.3, rule by rule."""
+    """docs/formats.md §1.3, rule by rule."""
     p = PRINTERS[printer]
     with zipfile.ZipFile(jobs[name]) as z:
         assert z.testzip() is None                                      # firmware CRC check

@@ -1,7 +1,7 @@
 """Printer profiles, native orientation and placement on the plate.
 
 References: PrusaSlicer's raster transform written out point by point
-(formats.md §1.2), the SL1S placement measured on a real PrusaSlicer export,
+(docs/formats.md §1.2), the SL1S placement measured on a real PrusaSlicer export,
 and models whose inside pixels have a known centre.
 """
 from __future__ import annotations
@@ -109,7 +109,7 @@ def test_to_native_small_printers_fully():
 
 
 def test_sl1s_matches_the_measured_prusaslicer_export():
-    """formats.md §1.2: bed X 20.013..34.013, Y 10.021..27.021 mm landed at rows
+    """docs/formats.md §1.2: bed X 20.013..34.013, Y 10.021..27.021 mm landed at rows
     1879..2159, columns 200..540 of the 1620 x 2560 SL1S PNG."""
     p = PRINTERS["prusa-sl1s"]
     px, py = p.pixel_size

@@ -74,7 +74,7 @@ def test_connected_and_compact(sample):
 
 def test_surface_exists(sample):
     name, skel, _ = sample
-    # an isolated strut shorter than 0.688 tau has no surface (math.md 1.5): keep a wide margin
+    # an isolated strut shorter than 0.688 tau has no surface (docs/math.md §1.5): keep a wide margin
     a, b = skel.endpoints()
     assert np.all(np.linalg.norm(b - a, axis=1) > 2.0 * skel.radii.max(axis=1))
     # the skeleton lies inside the solid: F >= 1 at every node and strut midpoint

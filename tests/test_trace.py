@@ -79,7 +79,7 @@ def test_every_voxel_matches_dense_reference(case, method):
     grid = make_grid(skel.support_bounds(), px, layer_height=h)
     res, f = assert_exact(skel, grid, method)
     if case == "lone_short_strut":
-        # L = 0.36 tau < 0.688 tau: no surface at all (math.md §1.5)
+        # L = 0.36 tau < 0.688 tau: no surface at all (docs/math.md §1.5)
         assert f.max() < 1.0 and res.n_runs == 0
     elif case != "thinner_than_pixel":
         assert res.n_runs > 0

@@ -25,7 +25,7 @@ def test_reference_mesh_is_a_closed_manifold_of_the_field():
     man, info = reference_mesh(s, 0.1)
     assert man.status().name == "NoError" and man.genus() == 0
     # the field's solid: a cylinder of radius 1 with free ends only ~0.25 tau
-    # beyond the end points (math.md 1.5), not capsule caps of radius 1
+    # beyond the end points (docs/math.md §1.5), not capsule caps of radius 1
     zmin, zmax = man.bounding_box()[2], man.bounding_box()[5]
     assert 3.2 < zmax < 3.3 and -3.3 < zmin < -3.2
     sec = man.slice(0.0)

@@ -18,13 +18,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from . import machine
 
 METHOD_ARGS = {
     "sampling-global": ("sampling", 0),
@@ -104,9 +105,7 @@ def table1(models=("jellyfish", "microstructure"), layers=(512, 1024), pixels=51
                     if row["model"] == name and row["layers"] == K and base:
                         row["speedup_vs_sampling"] = base / row["seconds"]
     return {"benchmark": "table1", "compile_seconds": compile_s, "threads": nthreads,
-            "machine": {"python": sys.version.split()[0], "platform": platform.platform(),
-                        "cpu": platform.processor() or platform.machine()},
-            "rows": rows}
+            "machine": machine.describe(), "rows": rows}
 
 
 def _run_diff(a, b, grid) -> int:
@@ -154,6 +153,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     res = table1(args.models, args.layers, args.pixels, args.methods, args.threads,
                  not args.no_write, args.repeat)
+    res = {"command": machine.command_line("python -m validation.bench", argv), **res}
+    print(f"command: {res['command']}\nmachine: {machine.summary(res['machine'])}")
     print(format_table(res))
     if args.json:
         args.json.write_text(json.dumps(res, indent=1) + "\n")

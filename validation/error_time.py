@@ -31,12 +31,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from . import machine
 
 #: reference: pixels across the support box, contour tolerance (mm)
 REF_PIXELS = 1024
@@ -201,7 +202,7 @@ def sweep(model: str = "jellyfish", configs=None, quick: bool = False, repeat: i
             "reference": {"pixels": ref_pixels, "tol": ref_tol, "seconds": ref.seconds,
                           "heights": sorted(ref.cache)},
             "targets": list(TARGETS), "threads": nthreads, "compile_seconds": compile_s,
-            "machine": {"python": sys.version.split()[0], "platform": platform.platform()},
+            "machine": machine.describe(),
             "rows": rows, "pareto_layer": pareto(rows, "error_layer"), "pareto_solid": pareto(rows, "error_solid")}
 
 
@@ -276,6 +277,8 @@ def main(argv=None) -> int:
     res = sweep(args.model, quick=args.quick, repeat=args.repeat, threads=args.threads,
                 progress=lambda r: print(f"  {label(r)}: {r['seconds']:.3f} s, {r['error_layer'] * 1e3:.3f} um",
                                          file=sys.stderr, flush=True))
+    res = {"command": machine.command_line("python -m validation.error_time", argv), **res}
+    print(f"command: {res['command']}\nmachine: {machine.summary(res['machine'])}")
     print(format_table(res))
     if args.json:
         args.json.write_text(json.dumps(res, indent=1) + "\n")

@@ -3,7 +3,7 @@
 This module deliberately shares **no code** with :mod:`slicer` (it must not
 import it).  It lives in :mod:`validation` so the stiff-case suite
 (:mod:`validation.stiff`) and the tests (``tests/reference.py`` re-exports it)
-use the same reference.  It evaluates the definition (math.md §1.1)
+use the same reference.  It evaluates the definition (docs/math.md §1.1)
 
     f(p) = ∫_S (1/τ(q)) k(‖p − q‖ / τ(q)) dq,    k(d) = N (1 − (d/σ)²)^(n/2)
 
@@ -44,13 +44,13 @@ import numpy as np
 
 LD = np.longdouble
 
-#: default kernel (math.md §1.2): degree 6, support factor 2
+#: default kernel (docs/math.md §1.2): degree 6, support factor 2
 DEGREE = 6
 SIGMA = 2.0
 
 
 def normalisation(degree: int = DEGREE, sigma: float = SIGMA) -> float:
-    """N putting the iso-value 1 at distance τ of an infinite strut (math.md §1.3),
+    """N putting the iso-value 1 at distance τ of an infinite strut (docs/math.md §1.3),
     written with the Gamma function: B_m = √π Γ(m+1) / Γ(m+3/2)."""
     m = degree / 2
     b_m = math.sqrt(math.pi) * math.gamma(m + 1) / math.gamma(m + 1.5)

@@ -13,7 +13,7 @@ mesh's error is its chordal error only: flat triangles of edge up to
 meshed box count as outside, so a box that cuts the solid closes it with caps.
 
 This is not a union of capsules: free ends, tapers and blends are those of
-the field (math.md §1.5).
+the field (docs/math.md §1.5).
 
 Two uses:
 

@@ -42,7 +42,6 @@ import inspect
 import itertools
 import json
 import math
-import platform
 import sys
 import time
 from dataclasses import dataclass, field
@@ -51,6 +50,7 @@ from typing import Callable
 
 import numpy as np
 
+from . import machine
 from . import reference_field as ref
 
 #: voxels with |F - 1| at most this are not counted as mismatches (summation order)
@@ -129,7 +129,7 @@ def _cone(ratio, length=3.0):
 
 def _critical(fast):
     # sigma * (r1 - r0) = 2 exactly, with the strut's length or its extent across the
-    # ray exactly 2: E = 0 (linear support quadratic) and/or A = 0 (math.md §2.2, §3.1)
+    # ray exactly 2: E = 0 (linear support quadratic) and/or A = 0 (docs/math.md §2.2, §3.1)
     nodes = [[0, 0, 0], [0, 0, 2], [1.5, 0, 0], [3.5, 0, 0], [0, 2, 0], [2, 2, 1.5], [3, 2.5, 0], [3, 4.5, 3]]
     s = _skel(nodes, [[0, 1], [2, 3], [4, 5], [6, 7]], [[0.25, 1.25]] * 4)
     return Setup(s, 0.2 if fast else 0.08, tau=0.5)
@@ -161,7 +161,7 @@ def _axis(tapered):
 
 def _tilted_taper(fast):
     # a tapered strut tilted 0.3 rad off the ray direction: the ray lies inside the
-    # opening angle of its support cone (A <= 0 in math.md §3.1), and a nested
+    # opening angle of its support cone (A <= 0 in docs/math.md §3.1), and a nested
     # one: sigma * (r1 - r0) > L (E <= 0, the thin end's support inside the thick one's)
     d = np.array([math.sin(0.3), 0.0, math.cos(0.3)])
     s = _skel([[0, 0, 0], 3 * d, [3, 0, 0], [3, 0, 1]], [[0, 1], [2, 3]], [[0.1, 1.0], [0.1, 1.0]])
@@ -303,7 +303,7 @@ def _kernel(degree, sigma):
 
 
 CASES: list[Case] = [
-    Case("taper_1e-12", "r1/r0 - 1 = 1e-12 (near-constant taper, math.md §2.6.1)", _taper(1e-12)),
+    Case("taper_1e-12", "r1/r0 - 1 = 1e-12 (near-constant taper, docs/math.md §2.6.1)", _taper(1e-12)),
     Case("taper_1e-9", "r1/r0 - 1 = 1e-9", _taper(1e-9)),
     Case("taper_1e-6", "r1/r0 - 1 = 1e-6", _taper(1e-6)),
     Case("taper_1e-3", "r1/r0 - 1 = 1e-3", _taper(1e-3)),
@@ -324,7 +324,7 @@ CASES: list[Case] = [
     Case("duplicate", "a strut listed 4 times (once reversed), fields add up", _duplicate),
     Case("offset_1e4", "scene 1e4 mm from the origin", _offset(1e4)),
     Case("offset_1e5", "scene 1e5 mm from the origin", _offset(1e5)),
-    Case("offset_1e6", "scene 1e6 mm from the origin (beyond the brief)", _offset(1e6)),
+    Case("offset_1e6", "scene 1e6 mm from the origin", _offset(1e6)),
     Case("node_26", "26 struts meeting at one node on a pixel column", _node26),
     Case("long_1e4_mid", "strut of length 1e4 tau, window at mid-length", _long("axis_x")),
     Case("long_1e4_end", "strut of length 1e4 tau, window at its free end", _long("end")),
@@ -612,7 +612,7 @@ def run_case(case: Case, fast: bool, seed: int = 0) -> dict:
             except SceneError as exc:
                 msg = str(exc)
                 ok = all(e in msg for e in expect)
-                refused.append({"message": msg, "ok": ok})
+                refused.append({"message": machine.portable(msg), "ok": ok})
                 if not ok:
                     problems.append(f"refused with an unexpected message: {msg}")
             else:
@@ -756,10 +756,9 @@ def main(argv=None) -> int:
     if args.json:
         import numba
 
-        out = {"command": "python -m validation.stiff" + (" --fast" if args.fast else "")
-               + (" --cases " + " ".join(args.cases) if args.cases else ""),
-               "machine": platform.platform(), "python": platform.python_version(),
-               "threads": numba.get_num_threads(), "seconds": total, "cases": rows}
+        out = {"command": machine.command_line("python -m validation.stiff", argv),
+               "machine": machine.describe(), "threads": numba.get_num_threads(), "seconds": total,
+               "cases": rows}
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(args.json).with_suffix(".json.tmp")
         tmp.write_text(json.dumps(out, indent=1))

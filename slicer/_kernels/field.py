@@ -1,4 +1,4 @@
-"""Closed-form SIIS field of one tapered segment (math.md §2).
+"""Closed-form SIIS field of one tapered segment (docs/math.md §2).
 
 Segment table layout (one row per segment, built by
 :func:`slicer.field.segment_table`), oriented so the radius grows from ``a``:
@@ -37,7 +37,7 @@ NCOL = 10
 def _support_local(seg, i, px, py, pz, inv_s2):
     """Support interval of segment ``i`` at p, in arc lengths measured from a
     local origin ``to``: the foot of p on the axis, clamped to [0, L]
-    (math.md §2.2).
+    (docs/math.md §2.2).
 
     With ``t' = t - to`` and ``e = (p - a).u - to`` the support polynomial is
     ``P = c2 t'^2 + 2 (tau_o delta + e / sigma^2) t' + tau_o^2 - (perp^2 + e^2) / sigma^2``.
@@ -145,7 +145,7 @@ def _support_local(seg, i, px, py, pz, inv_s2):
 def support_interval(seg, i, px, py, pz, inv_s2):
     """Arc-length interval [ta, tb] of segment ``i`` whose support ball holds p.
 
-    Solves ``P(t) = tau(t)^2 - |p - q(t)|^2 / sigma^2 > 0`` (math.md §2.2);
+    Solves ``P(t) = tau(t)^2 - |p - q(t)|^2 / sigma^2 > 0`` (docs/math.md §2.2);
     see :func:`_support_local`, which this shifts back to arc lengths from a.
 
     Returns
@@ -182,7 +182,7 @@ def _poly_mul_quad(w, src, n_src, r0, r1, r2, dst):
 
 @inline_kernel
 def _moments(Y, d, l, nmax, w, J, Yp):
-    """w[J + j] = int_0^Y y^j / (1 - d y) dy for j = 0..nmax (math.md §2.4).
+    """w[J + j] = int_0^Y y^j / (1 - d y) dy for j = 0..nmax (docs/math.md §2.4).
 
     ``w[Yp + j]`` must hold ``Y^j`` for j = 0..nmax+1 (``J``, ``Yp``: offsets
     into the work array ``w``).
@@ -217,7 +217,7 @@ def _moments(Y, d, l, nmax, w, J, Yp):
 def segment_eval(seg, i, px, py, pz, m, inv_s2, norm, grad, scratch):
     """Field of segment ``i`` at p, and its gradient if ``grad``.
 
-    Möbius-variable closed form (math.md §2.4): exact for every taper,
+    Möbius-variable closed form (docs/math.md §2.4): exact for every taper,
     including constant radius, and integrated only over the clipped support.
 
     Parameters

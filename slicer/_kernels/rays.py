@@ -161,8 +161,8 @@ def piece_bounds(hrec, sarr, ns, F, FP, ia, ib, ta, tb, strict):
     the ray piece ``[ta, tb]``, and whether the sum is monotone there.
 
     Rows ``ia`` and ``ib`` of ``F``/``FP`` hold each primitive's value and
-    directional derivative at ``ta`` and ``tb``. Per primitive (math.md
-    §5.1): increasing (``f'(tb) > 0``, ``f'(ta) >= 0``) gives
+    directional derivative at ``ta`` and ``tb``. Per primitive
+    (docs/math.md §5.1): increasing (``f'(tb) > 0``, ``f'(ta) >= 0``) gives
     ``[f(ta), f(tb)]``, decreasing the reverse; anything else is ambiguous
     and bounded with the directional Lipschitz constant K:
     ``hi = (f(ta) + f(tb) + K (tb - ta)) / 2``, ``lo = min(f(ta), f(tb))``

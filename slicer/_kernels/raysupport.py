@@ -1,5 +1,5 @@
 """Ray versus one segment's support: entry/exit, the pre-segmentation cut and
-the data of the per-primitive directional Lipschitz bound (math.md §3, §4.2).
+the data of the per-primitive directional Lipschitz bound (docs/math.md §3, §4.2).
 
 The ray is ``r(t) = o + t d`` with ``|d| = 1``. All quantities are computed
 from components perpendicular to ``d`` taken explicitly, so an axis-aligned
@@ -28,7 +28,7 @@ def kprime_abs(x, n, sigma, norm):
 
 @kernel
 def kprime_max(n, sigma, norm):
-    """max |k'| = (n/sqrt(n-1)) (1 - 1/(n-1))^(n/2-1) N/sigma (EG22, math.md §1.3)."""
+    """max |k'| = (n/sqrt(n-1)) (1 - 1/(n-1))^(n/2-1) N/sigma (EG22, docs/math.md §1.3)."""
     if n == 2:
         return 2.0 * norm / sigma
     return n / math.sqrt(n - 1.0) * (1.0 - 1.0 / (n - 1.0)) ** (n // 2 - 1) * norm / sigma
@@ -226,7 +226,7 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, hrec, row)
 
 @kernel
 def lipschitz(hrec, r, ta, tb):
-    """Bound on |f'(t)| for t in [ta, tb] from a hit record (math.md §4.2).
+    """Bound on |f'(t)| for t in [ta, tb] from a hit record (docs/math.md §4.2).
 
     D+ (D-) is the part of the skeleton range that lies ahead of (behind) some
     point of the piece. Only skeleton points whose support reaches the piece

@@ -14,6 +14,7 @@ from validation.bench import format_table as table1_table
 from validation.bench import table1
 from validation.error_time import format_table as error_table
 from validation.error_time import label, plot, sweep
+from validation.machine import command_line
 
 from ..atomic import write_bytes
 from ..errors import OptionError, OutputError, require
@@ -68,6 +69,10 @@ def run_benchmark(which, model, quick, repeat, threads, json_path, plot_path=Non
             raise OutputError(f"{p}: the folder {Path(p).parent} does not exist")
     res, plotter = BENCHMARKS[which](model, quick, repeat, threads)
     if json_path:
+        args = [which] + (["--model", model] if model else []) + (["--quick"] if quick else []) \
+            + (["--repeat", str(repeat)] if repeat != 1 else []) + (["--threads", str(threads)] if threads else []) \
+            + ["--json", json_path] + (["--plot", plot_path] if plot_path else [])
+        res = {"command": command_line("skelslice bench", args), **res}
         write_bytes(json_path, (json.dumps(res, indent=1) + "\n").encode(), force=True)
         click.echo(f"results -> {json_path}")
     if plot_path and plotter:

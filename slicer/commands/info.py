@@ -9,7 +9,7 @@ import numpy as np
 from ..scene_io import load_scene
 from .options import positive
 
-#: an isolated segment shorter than this times its mean radius has no surface (math.md §1.5)
+#: an isolated segment shorter than this times its mean radius has no surface (docs/math.md §1.5)
 MIN_ISOLATED_LENGTH = 0.688
 #: how many offending segment/node indices a warning lists
 _LISTED = 10
