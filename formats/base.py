@@ -33,6 +33,9 @@ class StackWriter:
     default_printer: str | None = None
     #: True: the format cannot be written without a printer profile
     needs_printer: bool = False
+    #: print time and resin volume of the written stack (formats.estimate.PrintEstimate),
+    #: set by close() in the formats that know a printer; None otherwise
+    estimate = None
 
     def __init__(self, path, grid, meta: dict | None = None, force: bool = False, settings=None):
         self.path = Path(path)

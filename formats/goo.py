@@ -33,7 +33,9 @@ from slicer.atomic import AtomicFile
 from slicer.errors import OutputError
 
 from .base import StackWriter, build_time
+from .estimate import LayerMeter
 from .printers import plate_printer
+from .rle import runs
 from .thumbnails import TopView, rgb565
 
 HEADER_SIZE = 195_477
@@ -50,35 +52,6 @@ def _fixed(text: str, n: int) -> bytes:
     """NUL-padded fixed-width string field."""
     b = text.encode("ascii", "replace")[:n - 1]
     return b + b"\0" * (n - len(b))
-
-
-def runs(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Runs of equal values of a row-major image: (values (r,) uint8, lengths (r,) int64).
-
-    Only the band of rows with a non-zero pixel is scanned; the empty rows
-    above and below join the first and last runs.
-    """
-    H, W = image.shape
-    band = np.flatnonzero(image.any(axis=1))
-    if band.size == 0:
-        return np.zeros(1 if H * W else 0, np.uint8), np.full(1 if H * W else 0, H * W, np.int64)
-    r0, r1 = int(band[0]), int(band[-1]) + 1
-    flat = np.ascontiguousarray(image[r0:r1], dtype=np.uint8).reshape(-1)
-    starts = np.concatenate([[0], np.flatnonzero(flat[1:] != flat[:-1]) + 1])
-    lengths = np.diff(np.concatenate([starts, [flat.size]])).astype(np.int64)
-    vals = flat[starts]
-    before, after = r0 * W, (H - r1) * W
-    if before:
-        if vals[0] == 0:
-            lengths[0] += before
-        else:
-            vals, lengths = np.concatenate([[0], vals]).astype(np.uint8), np.concatenate([[before], lengths])
-    if after:
-        if vals[-1] == 0:
-            lengths[-1] += after
-        else:
-            vals, lengths = np.concatenate([vals, [0]]).astype(np.uint8), np.concatenate([lengths, [after]])
-    return vals, lengths
 
 
 def encode_layer(image: np.ndarray) -> tuple[bytes, int]:
@@ -131,8 +104,7 @@ class GooWriter(StackWriter):
         self._out.fh.write(b"\0" * HEADER_SIZE)
         self._top = TopView(self.printer.plate_shape)
         self._k = 0
-        self._grey_sum = 0.0
-        self._seconds = 0.0
+        self._meter = LayerMeter()
 
     def write_layer(self, k: int, image: np.ndarray) -> None:
         if k != self._k:
@@ -151,17 +123,17 @@ class GooWriter(StackWriter):
         except OSError as exc:
             self.abort()
             raise OutputError(f"{self.path}: cannot write layer {k} ({exc})") from None
-        self._grey_sum += float(image.sum(dtype=np.uint64)) / 255.0
-        self._seconds += exposure + 60.0 * (lift_d / lift_v + retract_d / retract_v)
+        self._meter.add(image)
         self._top.add(k, image)
         self._k += 1
 
     def header(self) -> bytes:
-        """The 195 477-byte header (needs every layer written)."""
+        """The 195 477-byte header (needs every layer written); print time and
+        volume (mm³, as Elegoo's spec gives it) from :mod:`formats.estimate`."""
         s, p = self.settings, self.printer
         rows, cols = p.native_shape
-        px, py = p.pixel_size
-        volume = self._grey_sum * px * py * s.layer_height          # mm^3
+        est = self._meter.estimate(s)
+        volume = est.volume_ml * 1000.0                               # mm^3
         lift_d, lift_v, retract_d, retract_v = p.lift
         gen = self.meta.get("generator", "skelslice")
         parts = [
@@ -177,7 +149,7 @@ class GooWriter(StackWriter):
             struct.pack(">fI", s.bottom_exposure, s.bottom_layers),
             struct.pack(">16f", lift_d, lift_v, lift_d, lift_v, retract_d, retract_v, retract_d, retract_v,
                         *([0.0] * 8)),
-            struct.pack(">HH?I3f", 255, 255, False, int(round(self._seconds)), volume, volume * 1.1e-3, 0.0),
+            struct.pack(">HH?I3f", 255, 255, False, int(round(est.seconds)), volume, volume * 1.1e-3, 0.0),
             _fixed("$", 8), struct.pack(">I?H", HEADER_SIZE, True, 0),
         ]
         head = b"".join(parts)
@@ -188,6 +160,7 @@ class GooWriter(StackWriter):
         if self._k != self.grid.layers:
             self.abort()
             raise OutputError(f"{self.path}: {self._k} of {self.grid.layers} layers were written")
+        self.estimate = self._meter.estimate(self.settings)
         try:
             fh = self._out.fh
             fh.write(ENDING)

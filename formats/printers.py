@@ -21,10 +21,12 @@ measured PrusaSlicer output.
 
 Profile values (resolution, display size, orientation, mirroring, height)
 come from PrusaSlicer's ``PrusaResearchSLA.ini`` (Prusa) and UVtools'
-``PrusaSlicer/printer/*.ini`` (Elegoo, Anycubic). Exposure times and bottom
-layers are typical starting values for a standard resin at 0.05 mm:
-calibrate them for your resin (``--exposure``, ``--bottom-exposure``,
-``--bottom-layers``).
+``PrusaSlicer/printer/*.ini`` (Elegoo, Phrozen, Creality, Anycubic), which
+also give the lift distances and speeds, the per-layer waits and each
+printer's native file format (``FILEFORMAT_*``; docs/printers.md). Exposure
+times and bottom layers are typical starting values for a standard resin at
+0.05 mm: calibrate them for your resin (``--exposure``,
+``--bottom-exposure``, ``--bottom-layers``).
 """
 from __future__ import annotations
 
@@ -72,10 +74,17 @@ class Printer:
         Preview sizes the format stores.
     lift : (4,) float
         Lift distance (mm), lift speed (mm/min), retract distance (mm),
-        retract speed (mm/min), for formats that store motion.
+        retract speed (mm/min), for formats that store motion and for the
+        print-time estimate (:mod:`formats.estimate`). Prusa printers tilt
+        the vat instead: their lift distances are 0.
     layer_overhead : float, s
-        Time per layer besides exposure (tilt or lift), for print-time
-        estimates.
+        Fixed time per layer besides exposure and lift: the wait before
+        curing the file stores (Anycubic "wait before cure", Chitu "light-off
+        delay"); for Prusa printers the tilt and settle time.
+    slow_overhead : float, s
+        Extra time of a layer whose solid area exceeds
+        :data:`formats.estimate.AREA_FILL` % of the display (Prusa's slow
+        tilt); 0 for lifting printers.
     """
 
     name: str
@@ -96,6 +105,7 @@ class Printer:
     thumbnails: tuple[tuple[int, int], ...] = ((400, 400), (800, 480))
     lift: tuple[float, float, float, float] = (5.0, 65.0, 5.0, 150.0)
     layer_overhead: float = 8.0
+    slow_overhead: float = 0.0
 
     @property
     def pixel_size(self) -> tuple[float, float]:
@@ -168,16 +178,20 @@ class Printer:
 
 #: name -> Printer
 PRINTERS: dict[str, Printer] = {p.name: p for p in [
+    # Prusa: tilting vat (no lift); fast tilt + settle per layer, +3 s for a slow tilt
     Printer("prusa-sl1", "Original Prusa SL1", "Prusa", (2560, 1440), (120.96, 68.04), "portrait",
-            True, False, 150.0, 0.05, 6.0, 35.0, 10, "sl1", "SL1", layer_overhead=11.0),
+            True, False, 150.0, 0.05, 6.0, 35.0, 10, "sl1", "SL1", lift=(0.0, 65.0, 0.0, 150.0),
+            layer_overhead=11.0, slow_overhead=3.0),
     Printer("prusa-sl1s", "Original Prusa SL1S SPEED", "Prusa", (2560, 1620), (128.0, 81.0), "portrait",
-            True, False, 150.0, 0.05, 2.0, 25.0, 10, "sl1s", "SL1S"),
+            True, False, 150.0, 0.05, 2.0, 25.0, 10, "sl1s", "SL1S", lift=(0.0, 65.0, 0.0, 150.0),
+            slow_overhead=3.0),
+    # Elegoo GOO (the GOO file's waits are 0)
     Printer("elegoo-mars-4-ultra", "ELEGOO Mars 4 Ultra", "Elegoo", (8520, 4320), (153.36, 77.76),
             "landscape", True, False, 165.0, 0.05, 2.5, 30.0, 5, "goo", "ELEGOO Mars 4 Ultra",
-            thumbnails=((290, 290), (116, 116)), lift=(5.0, 100.0, 5.0, 150.0), layer_overhead=6.0),
+            thumbnails=((290, 290), (116, 116)), lift=(5.0, 100.0, 5.0, 150.0), layer_overhead=0.0),
     Printer("elegoo-saturn-3-ultra", "ELEGOO Saturn 3 Ultra", "Elegoo", (11520, 5120), (218.88, 122.88),
             "landscape", True, False, 260.0, 0.05, 2.5, 30.0, 5, "goo", "ELEGOO Saturn 3 Ultra",
-            thumbnails=((290, 290), (116, 116)), lift=(7.0, 70.0, 7.0, 210.0), layer_overhead=7.0),
+            thumbnails=((290, 290), (116, 116)), lift=(7.0, 70.0, 7.0, 210.0), layer_overhead=0.0),
     Printer("anycubic-photon-mono-x", "Anycubic Photon Mono X", "Anycubic", (3840, 2400), (192.0, 120.0),
             "landscape", True, False, 245.0, 0.05, 2.0, 40.0, 6, "zip", "Photon Mono X",
             lift=(8.0, 120.0, 8.0, 120.0)),
