@@ -12,7 +12,7 @@ from .slicing import SliceResult, slice_skeleton
 
 def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | None = None,
                 force: bool = False, progress: bool | None = None, skel: Skeleton | None = None,
-                contour_tol: float = 1e-3, settings=None) -> float:
+                contour_tol: float = 1e-3, settings=None, info: dict | None = None) -> float:
     """Stream the layers of a result to an output, atomically.
 
     Parameters
@@ -38,6 +38,9 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
         :func:`slicer.antialias.render`); None writes ``result``'s own layers.
         With a printer, contour formats are placed on the plate too (the same
         layers and position as the images, coordinates in plate mm).
+    info : dict, optional
+        Receives ``estimate``: the writer's print time and resin volume
+        (:class:`formats.estimate.PrintEstimate`), None if it has none.
 
     Returns
     -------
@@ -80,6 +83,8 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
                    leave=False, desc="writing")
         for k, img in enumerate(bar):
             writer.write_layer(k, img)
+    if info is not None:
+        info["estimate"] = writer.estimate
     return time.perf_counter() - t0
 
 
@@ -159,8 +164,11 @@ def run_slice(skel: Skeleton, out, *, pixel_size: float | None = None, pixel_siz
         if report is not None:
             report(plan.describe())
         if dry_run:
+            from formats.estimate import print_estimate
+
+            est = print_estimate(job.settings, plan.grid.layers) if job.settings and job.settings.printer else None
             return {**plan.grid.to_dict(), "plan": plan.to_dict(), "plan_text": plan.describe(), "dry_run": True,
-                    "output": str(out), "format": job.fmt}
+                    "output": str(out), "format": job.fmt, "estimate": est and est.to_dict()}
         res = slice_planned(*args, plan=plan, executor=executor, executor_info=executor_info, workers=workers,
                             scheduler=scheduler, progress=progress)
     else:
@@ -174,8 +182,9 @@ def run_slice(skel: Skeleton, out, *, pixel_size: float | None = None, pixel_siz
     meta = {"generator": f"skelslice {__version__}", "method": method, "bucket": res.stats["bucket"]}
     if scene_name:
         meta["scene"] = scene_name
+    written: dict = {}
     write_s = write_stack(res, out, job.fmt, meta, force, progress, skel=skel, contour_tol=contour_tol,
-                          settings=job.settings)
+                          settings=job.settings, info=written)
     contour_info = None
     if contours is not None:
         from .contours import write_contours
@@ -189,7 +198,8 @@ def run_slice(skel: Skeleton, out, *, pixel_size: float | None = None, pixel_siz
         placement = plate_placement(res, job.settings)
         grid = res.grid if placement is None else placement.grid
     return {**grid.to_dict(), **res.stats, "write_seconds": write_s, "runs": res.n_runs,
-            "output": str(out), "format": job.fmt, "contours": contour_info}
+            "output": str(out), "format": job.fmt, "contours": contour_info,
+            "estimate": written.get("estimate") and written["estimate"].to_dict()}
 
 
 def check_not_input(out, *inputs) -> None:

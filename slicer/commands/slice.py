@@ -92,6 +92,10 @@ def command(scene, out, pixel_size, pixel_size_y, layer_height, bounds, method, 
             f"{summary['width']} x {summary['height']} px x {summary['layers']} layers -> {out} [{summary['format']}] "
             f"({method}: trace {summary['trace_seconds']:.2f} s, {summary['evaluations']:,} evaluations, "
             f"write {summary['write_seconds']:.2f} s)")
+        if summary.get("estimate"):
+            from formats.estimate import PrintEstimate
+
+            click.echo(PrintEstimate.from_dict(summary["estimate"]).describe())
 
 
 def _print_dry_run(skel, scene, out, summary, executor, workers, scheduler) -> None:
@@ -106,5 +110,10 @@ def _print_dry_run(skel, scene, out, summary, executor, workers, scheduler) -> N
     where = executor + (f" at {scheduler}" if scheduler else "") + (f", {workers} workers" if workers else "")
     click.echo(f"executor:  {where}")
     click.echo(summary["plan_text"])
+    if summary.get("estimate"):
+        from formats.estimate import PrintEstimate
+
+        click.echo(f"estimate:  {PrintEstimate.from_dict(summary['estimate']).describe()} "
+                   f"(the grid's layers, an upper bound; resin once sliced)")
     for w in scene_stats(skel, g["pixel_size"][0])["warnings"]:
         click.echo(f"warning:   {w['message']}")
