@@ -34,6 +34,12 @@ from uv3dp_checks import sha256, uv3dp_convert, uv3dp_layers
 
 SETTINGS = ["--layer-height", "0.2", "--exposure", "2.4", "--bottom-exposure", "33", "--bottom-layers", "2", "-q"]
 JOBS = [(name, []) for name in MACHINES] + [(name, ["--aa", "2"]) for name in ("pws", "pw0", "pwmx")]
+#: per suffix: file version, display (columns, rows) and machine name, as UVtools' printer profiles
+#: (FILEFORMAT_*, FILEVERSION_*, display_pixels_*) and AnycubicFile name them
+UVTOOLS = {"pws": (1, (1440, 2560), "Photon S"), "pw0": (1, (480, 854), "Photon Zero"),
+           "pwmo": (516, (1620, 2560), "Photon Mono"), "pwma": (516, (3840, 2400), "Photon Mono 4K"),
+           "pwmx": (516, (3840, 2400), "Photon Mono X"), "pwmb": (516, (5760, 3600), "Photon Mono X 6K"),
+           "pm5s": (518, (11520, 5120), "Photon Mono M5s")}
 
 
 @pytest.fixture(scope="module")
@@ -204,9 +210,10 @@ def test_our_reader_checks_every_field(jobs, key):
     meta, plate = plate_layers(zp)
     n = meta["layers"]
     f = read_photon(path, n)
-    assert f["version"] == m.version and f["tables"] == {1: 4, 516: 8, 517: 9, 518: 11}[m.version]
+    version, pixels, label = UVTOOLS[name]
+    assert f["version"] == version and f["tables"] == {1: 4, 516: 8, 517: 9, 518: 11}[version]
     rows, cols = p.native_shape
-    assert (f["res_x"], f["res_y"]) == (cols, rows) == m.pixels
+    assert (f["res_x"], f["res_y"]) == (cols, rows) == pixels
     assert f["pixel_um"] == pytest.approx(max(p.pixel_size) * 1000)
     assert f["layer_height"] == pytest.approx(0.2) and f["exposure"] == pytest.approx(2.4)
     assert f["bottom_exposure"] == pytest.approx(33) and f["bottom_layers"] == 2.0
@@ -223,7 +230,7 @@ def test_our_reader_checks_every_field(jobs, key):
     assert f["weight"] == pytest.approx(1.1 * f["volume"], rel=1e-6)
     seconds = 2 * 33 + (n - 2) * 2.4 + n * (2.5 + 60 * (lift_d / lift_v + lift_d / retract_v))
     assert f["print_time"] == round(seconds)
-    assert f["preview"] == (224, 42 if m.version == 1 else ord("x"), 168)
+    assert f["preview"] == (224, 42 if version == 1 else ord("x"), 168)
     # layer table, then every layer: the plate image in the native layout at the nearest stored grey
     greys = pws_greys(planes) if m.encoding == "pws" else PW0_GREYS
     images = layer_images(f, m.encoding, planes)
@@ -239,22 +246,22 @@ def test_our_reader_checks_every_field(jobs, key):
     assert at == len(f["raw"])
     if not aa:
         assert all(np.array_equal(img, p.to_native(ref)) for img, ref in zip(images, plate))   # binary: exact
-    if m.version >= 516:
+    if version >= 516:
         use_full, count, table_greys, unknown = f["colours"]
         assert (use_full, count, unknown) == (0, 16, 0)
         assert table_greys == ([15 + 16 * i for i in range(16)] if aa else [255] * 16)
         assert f["extra"] == pytest.approx((2, lift_d, lift_v / 60, retract_v / 60, 0, lift_v / 60, retract_v / 60,
                                             2, lift_d, lift_v / 60, retract_v / 60, 0, lift_v / 60, retract_v / 60))
-        assert f["machine"] == m.label and f["image_format"] == "pw0Img"
+        assert f["machine"] == label and f["image_format"] == "pw0Img"
         max_aa, fields, w, h, z, maxver, bg = f["machine_fields"]
-        assert (max_aa, fields, maxver, bg) == (16, {516: 1, 517: 7, 518: 15}[m.version], m.version, 6506241)
+        assert (max_aa, fields, maxver, bg) == (16, {516: 1, 517: 7, 518: 15}[version], version, 6506241)
         assert (w, h, z) == pytest.approx((p.display[0], p.display[1], p.max_height))
-    if m.version >= 518:
+    if version >= 518:
         pw, ph, *pad, count, pad9, res_x, res_y, p10, p11, p12, p13 = f["machine_518"]
-        assert (pw, ph) == pytest.approx((px * 1000, py * 1000)) and (res_x, res_y) == m.pixels and count == 1
+        assert (pw, ph) == pytest.approx((px * 1000, py * 1000)) and (res_x, res_y) == pixels and count == 1
         assert f["sublayers"] == [(a, s, lit) for a, s, *_, lit, _ in f["layers"]]
         assert f["preview2"] == (320, 4293, 0, 190)
-    if m.version >= 517:
+    if version >= 517:
         x0, y0, z0, x1, y1, z1, supports, density = f["model"]
         rows_any = np.flatnonzero(np.any([p.to_native(i).any(axis=1) for i in plate], axis=0))
         cols_any = np.flatnonzero(np.any([p.to_native(i).any(axis=0) for i in plate], axis=0))
@@ -275,7 +282,7 @@ def test_uv3dp_reads_pws_and_pw0(uv3dp, jobs, key):
     doc = uv3dp_layers(uv3dp, path)
     assert doc["decoder"] == "Image"                       # uv3dp's own pws/pw0 decoder
     size = doc["size"]
-    assert (size["X"], size["Y"], size["Layers"]) == (*m.pixels, meta["layers"])
+    assert (size["X"], size["Y"], size["Layers"]) == (*UVTOOLS[m.name][1], meta["layers"])
     assert (size["Millimeter"]["X"], size["Millimeter"]["Y"]) == pytest.approx(p.display, rel=1e-2)
     assert size["LayerHeight"] == pytest.approx(0.2)
     assert doc["exposure"]["LightOnTime"] == pytest.approx(2.4) and doc["exposure"]["LightOffTime"] == 2.5
