@@ -57,14 +57,9 @@ import struct
 
 import numpy as np
 
-from slicer.atomic import AtomicFile
-from slicer.errors import OutputError
-
-from .base import StackWriter, build_time
-from .estimate import LayerMeter
+from .base import BinaryStackWriter, build_time
 from .printers import plate_printer
 from .rle import GreyLevels, runs, split_runs
-from .thumbnails import TopView
 
 MAGIC = 0x12FD0086
 HEADER_SIZE = 112
@@ -83,8 +78,6 @@ MAX_RUN = 0xFFFFFFF
 #: largest RGB15 run (the run word holds n - 1 in 12 bits; Chitubox stops at 0xFFE)
 MAX_PREVIEW_RUN = 0xFFF
 SOFTWARE_VERSION = 0x01060300
-#: resin density for the weight field, g/ml
-DENSITY = 1.1
 U32 = 0xFFFFFFFF
 
 
@@ -160,45 +153,21 @@ def encode_preview(rgba: np.ndarray) -> bytes:
     return np.asarray(out, "<u2").tobytes()
 
 
-def _fixed(text: str) -> bytes:
-    return text.encode("ascii", "replace")
-
-
-class CtbWriter(StackWriter):
+class CtbWriter(BinaryStackWriter):
     """Chitubox CTB version 3 (per-layer lift and PWM records)."""
 
     name = "ctb"
     version = 3
     needs_printer = True
-
-    @classmethod
-    def check_settings(cls, settings) -> None:
-        """CTB holds any printer profile, exposure and bottom-layer count the
-        options allow (f32 times, u32 counts, 7-bit greys); nothing to refuse."""
+    max_size = U32
 
     def __init__(self, path, grid, meta=None, force=False, settings=None):
         self.printer = plate_printer(self.name, path, grid, settings)
-        super().__init__(path, grid, meta, force, settings)
-        self.machine = _fixed(self.printer.model)
+        self.machine = self.printer.model.encode("ascii", "replace")
         self.table_at = HEADER_SIZE + PARAMS_SIZE + SLICER_SIZE + len(self.machine)
-        self.data_at = self.table_at + LAYER_DEF_SIZE * grid.layers
         self.ex_size = LAYER_EX_SIZE if self.version >= 3 else 0
-        self._out = AtomicFile(self.path)
-        self._write(b"\0" * self.data_at, "the header")
+        super().__init__(path, grid, meta, force, settings, placeholder=self.table_at + LAYER_DEF_SIZE * grid.layers)
         self._table: list[bytes] = []
-        self._top = TopView(self.printer.plate_shape)
-        self._meter = LayerMeter()
-        self._k = 0
-
-    def _write(self, data: bytes, what: str) -> None:
-        try:
-            self._out.fh.write(data)
-        except OSError as exc:
-            self.abort()
-            raise OutputError(f"{self.path}: cannot write {what} ({exc})") from None
-        if self._out.fh.tell() > U32:
-            self.abort()
-            raise OutputError(f"{self.path}: the file passes 4 GiB, beyond the CTB format's 32-bit offsets")
 
     def layer_def(self, k: int, address: int, size: int) -> bytes:
         """The 36-byte layer table entry of layer ``k``."""
@@ -207,28 +176,23 @@ class CtbWriter(StackWriter):
                            address, size, 0, self.ex_size or LAYER_DEF_SIZE, 0, 0)
 
     def write_layer(self, k: int, image: np.ndarray) -> None:
-        if k != self._k:
-            raise ValueError(f"layers must be written in order: expected {self._k}, got {k}")
+        self.next_layer(k)
         data = cipher(encode_rle(GREYS.code[self.printer.to_native(image)]), KEY, k)
-        address = self._out.fh.tell() + self.ex_size
-        entry = self.layer_def(k, address, len(data))
+        entry = self.layer_def(k, self.tell() + self.ex_size, len(data))
         if self.ex_size:
             lift_d, lift_v, _, retract_v = self.printer.lift
-            ex = entry + struct.pack("<I11f", self.ex_size + len(data), lift_d, lift_v, 0.0, 0.0, retract_v,
-                                     0.0, 0.0, 0.0, 0.0, 0.0, 255.0)
-            self._write(ex, f"layer {k}")
-        self._write(data, f"layer {k}")
+            data = entry + struct.pack("<I11f", self.ex_size + len(data), lift_d, lift_v, 0.0, 0.0, retract_v,
+                                       0.0, 0.0, 0.0, 0.0, 0.0, 255.0) + data
+        self.write(data, f"layer {k}")
         self._table.append(entry)
-        self._meter.add(image)
-        self._top.add(k, image)
-        self._k += 1
+        self.layer_done(k, image)
 
     # ------------------------------------------------------------------ header
     def header(self, previews: tuple[int, int]) -> bytes:
         """The 112-byte header (needs every layer written)."""
         s, p, est = self.settings, self.printer, self.estimate
         rows, cols = p.native_shape
-        bed = p.display if p.orientation != "portrait" else (p.display[1], p.display[0])
+        bed = p.native_size
         return struct.pack(
             "<2I3f2I5fI3I3I5I2H3I",
             MAGIC, self.version, bed[0], bed[1], p.max_height, 0, 0,
@@ -244,7 +208,7 @@ class CtbWriter(StackWriter):
         lift_d, lift_v, _, retract_v = p.lift
         pad = 0x1234 if self.version <= 2 else 0              # as UVtools writes v2 files
         return struct.pack("<10f5I", lift_d, lift_v, lift_d, lift_v, retract_v, est.volume_ml,
-                           est.volume_ml * DENSITY, 0.0, p.layer_overhead, p.layer_overhead, s.bottom_layers,
+                           est.weight_g, 0.0, p.layer_overhead, p.layer_overhead, s.bottom_layers,
                            0, 0, 0, pad)
 
     def slicer_info(self) -> bytes:
@@ -257,31 +221,16 @@ class CtbWriter(StackWriter):
                            len(self.machine), flag, 0, per_layer, minutes, max(s.aa, 1), SOFTWARE_VERSION,
                            0.0, 0.0, 0, 0, 0, 0)
 
-    def close(self) -> None:
-        if self._k != self.grid.layers:
-            self.abort()
-            raise OutputError(f"{self.path}: {self._k} of {self.grid.layers} layers were written")
-        self.estimate = self._meter.estimate(self.settings)
+    def finish(self) -> dict[int, bytes]:
         previews = []
         for w, h in PREVIEWS:
             data = encode_preview(self._top.render((w, h)))
-            at = self._out.fh.tell()
-            self._write(struct.pack("<8I", w, h, at + PREVIEW_HEADER_SIZE, len(data), 0, 0, 0, 0) + data,
-                        "the previews")
+            at = self.tell()
+            self.write(struct.pack("<8I", w, h, at + PREVIEW_HEADER_SIZE, len(data), 0, 0, 0, 0) + data,
+                       "the previews")
             previews.append(at)
-        try:
-            fh = self._out.fh
-            fh.seek(0)
-            fh.write(self.header(tuple(previews)) + self.print_parameters() + self.slicer_info() + self.machine)
-            fh.write(b"".join(self._table))
-            fh.seek(0, 2)
-            self._out.publish(self.force)
-        except OSError as exc:
-            self.abort()
-            raise OutputError(f"{self.path}: cannot finish the output ({exc})") from None
-
-    def abort(self) -> None:
-        self._out.discard()
+        head = self.header(tuple(previews)) + self.print_parameters() + self.slicer_info() + self.machine
+        return {0: head + b"".join(self._table)}
 
 
 class CtbV2Writer(CtbWriter):

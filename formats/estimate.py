@@ -45,6 +45,8 @@ import numpy as np
 
 #: percentage of the display above which a layer counts as large (PrusaSlicer ``area_fill``)
 AREA_FILL = 50.0
+#: resin density for the weight fields of the printer formats, g/ml
+RESIN_DENSITY = 1.1
 
 
 @dataclass(frozen=True)
@@ -72,6 +74,11 @@ class PrintEstimate:
     waits: float
     volume_ml: float | None = None
     slow_layers: int = 0
+
+    @property
+    def weight_g(self) -> float | None:
+        """Resin weight at :data:`RESIN_DENSITY`, g."""
+        return None if self.volume_ml is None else self.volume_ml * RESIN_DENSITY
 
     @property
     def seconds(self) -> float:
@@ -223,5 +230,5 @@ class LayerMeter:
         return print_estimate(settings, self.layers, self.grey_sum, self.slow_layers, fade, pixel_area)
 
 
-__all__ = ["AREA_FILL", "PrintEstimate", "print_estimate", "exposure_times", "lift_seconds", "LayerMeter",
-           "duration"]
+__all__ = ["AREA_FILL", "RESIN_DENSITY", "PrintEstimate", "print_estimate", "exposure_times", "lift_seconds",
+           "LayerMeter", "duration"]

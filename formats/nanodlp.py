@@ -224,7 +224,7 @@ class NanoDlpWriter(ZipArchiveWriter):
                 "Version": gen.split()[-1], "OS": "any", "Arch": "any", "Profile": False}
 
     def plate_json(self) -> dict:
-        est = self.print_estimate()
+        est = self.print_estimate()                  # also without a printer: PrintEst = the exposures
         t = int(build_time().timestamp())
         return {"PlateID": 0, "ProfileID": 0, "CreatedDate": t, "Updated": t, "Path": self.path.stem,
                 "LayersCount": self._k, "Processed": True, "TotalSolidArea": float(est.volume_ml),

@@ -61,21 +61,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slicer.atomic import AtomicFile
-from slicer.errors import FormatError, OutputError
+from slicer.errors import FormatError
 
-from .base import StackWriter
-from .estimate import LayerMeter
+from .base import BinaryStackWriter, fixed_string
 from .printers import plate_printer
 from .rle import GreyLevels, runs, split_runs
-from .thumbnails import TopView
+from .thumbnails import rgb565
 
 PREVIEW = (224, 168)
 PREVIEW2 = (320, 190)
 #: tolerance on square pixels for version 1 (one pixel-size field)
 SQUARE_TOLERANCE = 0.01
-#: resin density for the weight field, g/ml
-DENSITY = 1.1
 PW0_GREYS = GreyLevels([17 * c for c in range(16)])
 PWS_RUN = 125
 
@@ -186,28 +182,17 @@ def encode_pws(counts: np.ndarray, planes: int) -> bytes:
     return b"".join(out)
 
 
-def rgb565(rgba: np.ndarray) -> bytes:
-    """Little-endian RGB565 of a (h, w, 3+) uint8 image, rows top first."""
-    rgb = rgba[..., :3].astype(np.uint16)
-    v = ((rgb[..., 0] >> 3) << 11) | ((rgb[..., 1] >> 2) << 5) | (rgb[..., 2] >> 3)
-    return v.astype("<u2").tobytes()
-
-
-def _name(text: str, n: int = 12) -> bytes:
-    b = text.encode("ascii", "replace")[:n - 1]
-    return b + b"\0" * (n - len(b))
-
-
 def _table(name: str, payload: bytes, with_head: bool) -> bytes:
     """A named table: name, length (counting the 16-byte head when ``with_head``), payload."""
-    return _name(name) + struct.pack("<I", len(payload) + (16 if with_head else 0)) + payload
+    return fixed_string(name, 12) + struct.pack("<I", len(payload) + (16 if with_head else 0)) + payload
 
 
-class PhotonWriter(StackWriter):
+class PhotonWriter(BinaryStackWriter):
     """Anycubic Photon Workshop file for :attr:`machine` (set by each subclass)."""
 
     machine: Machine
     needs_printer = True
+    max_size = 0xFFFFFFFF
 
     @classmethod
     def check_settings(cls, settings) -> None:
@@ -227,19 +212,14 @@ class PhotonWriter(StackWriter):
     def __init__(self, path, grid, meta=None, force=False, settings=None):
         self.printer = plate_printer(self.name, path, grid, settings)
         self.check_settings(settings)
-        super().__init__(path, grid, meta, force, settings)
         m = self.machine
         self.layout = LAYOUTS[m.version]
         self.planes = 8 if settings.antialiased else 1
         self.greys = pws_greys(self.planes) if m.encoding == "pws" else PW0_GREYS
         self.addresses = self.plan(grid.layers)
-        self._out = AtomicFile(self.path)
-        self._write(b"\0" * self.addresses["image"], "the tables")
+        super().__init__(path, grid, meta, force, settings, placeholder=self.addresses["image"])
         self._layers: list[tuple[int, int, int]] = []           # (address, length, non-zero pixels)
-        self._box = [None, None, None, None]                     # native row0, row1, col0, col1
-        self._top = TopView(self.printer.plate_shape)
-        self._meter = LayerMeter()
-        self._k = 0
+        self._box = None                                         # native row0, row1, col0, col1 of the model
 
     def plan(self, n: int) -> dict:
         """Offsets of every table for ``n`` layers (all but the layer data have fixed sizes)."""
@@ -262,16 +242,6 @@ class PhotonWriter(StackWriter):
         a["image"] = at
         return a
 
-    def _write(self, data: bytes, what: str) -> None:
-        try:
-            self._out.fh.write(data)
-        except OSError as exc:
-            self.abort()
-            raise OutputError(f"{self.path}: cannot write {what} ({exc})") from None
-        if self._out.fh.tell() > 0xFFFFFFFF:
-            self.abort()
-            raise OutputError(f"{self.path}: the file passes 4 GiB, beyond the format's 32-bit offsets")
-
     def encode(self, native: np.ndarray) -> bytes:
         """Layer data of a native image (8-bit greys, stored at the nearest level)."""
         codes = self.greys.code[native]
@@ -280,20 +250,18 @@ class PhotonWriter(StackWriter):
         return encode_pw0(codes, crc=self.machine.version == 1)
 
     def write_layer(self, k: int, image: np.ndarray) -> None:
-        if k != self._k:
-            raise ValueError(f"layers must be written in order: expected {self._k}, got {k}")
+        self.next_layer(k)
         native = self.printer.to_native(image)
         data = self.encode(native)
-        self._layers.append((self._out.fh.tell(), len(data), int(np.count_nonzero(native))))
-        self._write(data, f"layer {k}")
+        self._layers.append((self.tell(), len(data), int(np.count_nonzero(native))))
+        self.write(data, f"layer {k}")
         rows = np.flatnonzero(native.any(axis=1))
         if rows.size:
             cols = np.flatnonzero(native[rows[0]:rows[-1] + 1].any(axis=0))
             box = (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1)
-            self._box = [b if o is None else f(o, b) for o, b, f in zip(self._box, box, (min, max, min, max))]
-        self._meter.add(image)
-        self._top.add(k, image)
-        self._k += 1
+            old = self._box or box
+            self._box = (min(old[0], box[0]), max(old[1], box[1]), min(old[2], box[2]), max(old[3], box[3]))
+        self.layer_done(k, image)
 
     # ------------------------------------------------------------------ tables
     def filemark(self) -> bytes:
@@ -307,7 +275,7 @@ class PhotonWriter(StackWriter):
             fields.append(a["model"])
         if v >= 518:
             fields += [a["sublayers"], a["preview2"]]
-        return _name("ANYCUBIC") + struct.pack(f"<2I{len(fields)}I", v, self.layout.tables, *fields)
+        return fixed_string("ANYCUBIC", 12) + struct.pack(f"<2I{len(fields)}I", v, self.layout.tables, *fields)
 
     def header(self) -> bytes:
         s, p, est, v = self.settings, self.printer, self.estimate, self.machine.version
@@ -316,7 +284,7 @@ class PhotonWriter(StackWriter):
         aa = (self.planes if self.machine.encoding == "pws" else 16) if s.antialiased else 1
         body = struct.pack("<10f3I2f5I", max(p.pixel_size) * 1000.0, s.layer_height, s.exposure, p.layer_overhead,
                            s.bottom_exposure, float(s.bottom_layers), lift_d, lift_v / 60.0, retract_v / 60.0,
-                           est.volume_ml, aa, cols, rows, est.volume_ml * DENSITY, 0.0, ord("$"), 0,
+                           est.volume_ml, aa, cols, rows, est.weight_g, 0.0, ord("$"), 0,
                            int(round(est.seconds)), 0, 0)
         if v >= 516:
             body += struct.pack("<I", 0)                           # advanced mode off: one-stage lift
@@ -331,7 +299,7 @@ class PhotonWriter(StackWriter):
         w, h = PREVIEW
         mark = struct.pack("<I", 42) if self.machine.version == 1 else b"x\0\0\0"
         return _table("PREVIEW", struct.pack("<I", w) + mark + struct.pack("<I", h)
-                      + rgb565(self._top.render(PREVIEW)), with_head=True)
+                      + rgb565(self._top.render(PREVIEW), big_endian=False), with_head=True)
 
     def colours(self) -> bytes:
         aa = 16 if self.settings.antialiased else 1
@@ -349,13 +317,13 @@ class PhotonWriter(StackWriter):
         up, down = lift_v / 60.0, retract_v / 60.0
         stage = (lift_d, up, down, 0.0, up, down)
         body = struct.pack("<I6fI6f", 2, *stage, 2, *stage)
-        return _name("EXTRA") + struct.pack("<I", 24) + body
+        return fixed_string("EXTRA", 12) + struct.pack("<I", 24) + body
 
     def machine_table(self) -> bytes:
         p, m = self.printer, self.machine
         rows, cols = p.native_shape
-        size = p.display if p.orientation != "portrait" else (p.display[1], p.display[0])
-        body = (_name(m.label, 96) + _name(f"{m.encoding}Img", 16)
+        size = p.native_size
+        body = (fixed_string(m.label, 96) + fixed_string(f"{m.encoding}Img", 16)
                 + struct.pack("<2I3f2I", 16, self.layout.property_fields, size[0], size[1], p.max_height,
                               m.version, 6506241))
         if m.version >= 518:
@@ -366,15 +334,15 @@ class PhotonWriter(StackWriter):
 
     def software(self) -> bytes:
         gen = self.meta.get("generator", "skelslice")
-        return (_name("skelslice", 32) + struct.pack("<I", 164) + _name(gen.split()[-1], 32) + _name("any", 64)
-                + _name("", 32))
+        return (fixed_string("skelslice", 32) + struct.pack("<I", 164) + fixed_string(gen.split()[-1], 32)
+                + fixed_string("any", 64) + fixed_string("", 32))
 
     def model(self) -> bytes:
         p, s = self.printer, self.settings
         rows, cols = p.native_shape
-        size = p.display if p.orientation != "portrait" else (p.display[1], p.display[0])
+        size = p.native_size
         cw, rh = size[0] / cols, size[1] / rows
-        r0, r1, c0, c1 = [0, 0, 0, 0] if self._box[0] is None else self._box
+        r0, r1, c0, c1 = self._box or (0, 0, 0, 0)
         box = (c0 * cw - size[0] / 2, r0 * rh - size[1] / 2, 0.0, c1 * cw - size[0] / 2, r1 * rh - size[1] / 2,
                s.layer_height * self._k)
         return _table("MODEL", struct.pack("<6fIf", *box, 0, 0.0), with_head=True)
@@ -385,10 +353,10 @@ class PhotonWriter(StackWriter):
 
     def preview2(self) -> bytes:
         w, h = PREVIEW2
-        return _table("PREVIEW2", struct.pack("<I2HI", w, 4293, 0, h) + rgb565(self._top.render(PREVIEW2)),
-                      with_head=True)
+        image = rgb565(self._top.render(PREVIEW2), big_endian=False)
+        return _table("PREVIEW2", struct.pack("<I2HI", w, 4293, 0, h) + image, with_head=True)
 
-    def tables(self) -> dict:
+    def tables(self) -> dict[int, bytes]:
         """Offset -> bytes of every table (needs every layer written)."""
         a = self.addresses
         out = {0: self.filemark(), a["header"]: self.header(), a["preview"]: self.preview(),
@@ -399,24 +367,8 @@ class PhotonWriter(StackWriter):
         out.update({a[key]: make() for key, make in parts.items() if key in a})
         return out
 
-    def close(self) -> None:
-        if self._k != self.grid.layers:
-            self.abort()
-            raise OutputError(f"{self.path}: {self._k} of {self.grid.layers} layers were written")
-        self.estimate = self._meter.estimate(self.settings)
-        try:
-            fh = self._out.fh
-            for at, data in sorted(self.tables().items()):
-                fh.seek(at)
-                fh.write(data)
-            fh.seek(0, 2)
-            self._out.publish(self.force)
-        except OSError as exc:
-            self.abort()
-            raise OutputError(f"{self.path}: cannot finish the output ({exc})") from None
-
-    def abort(self) -> None:
-        self._out.discard()
+    def finish(self) -> dict[int, bytes]:
+        return self.tables()
 
 
 def _writer(m: Machine) -> type[PhotonWriter]:
@@ -429,4 +381,4 @@ def _writer(m: Machine) -> type[PhotonWriter]:
 PHOTON_WRITERS: dict[str, type[PhotonWriter]] = {name: _writer(m) for name, m in MACHINES.items()}
 
 __all__ = ["PhotonWriter", "PHOTON_WRITERS", "MACHINES", "LAYOUTS", "Machine", "Layout", "encode_pw0", "encode_pws",
-           "crc16", "pws_greys", "PW0_GREYS", "rgb565"]
+           "crc16", "pws_greys", "PW0_GREYS"]

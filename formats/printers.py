@@ -118,6 +118,13 @@ class Printer:
         return (self.pixels[1], self.pixels[0])
 
     @property
+    def native_size(self) -> tuple[float, float]:
+        """(width, height) mm of the display along the stored image's columns and rows."""
+        if self.orientation == "portrait":
+            return (self.display[1], self.display[0])
+        return self.display
+
+    @property
     def native_shape(self) -> tuple[int, int]:
         """(rows, columns) of the image stored in the file."""
         if self.orientation == "portrait":

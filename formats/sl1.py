@@ -96,11 +96,10 @@ class Sl1Writer(ZipArchiveWriter):
 
     def config_ini(self) -> dict:
         """The ``config.ini`` keys (formats.md §1.1); ``printTime`` and
-        ``usedMaterial`` are :mod:`formats.estimate`'s (faded exposures, the
-        slow tilt of layers over ``area_fill``)."""
-        s, p = self.settings, self.printer
+        ``usedMaterial`` are :attr:`estimate` (faded exposures, the slow tilt of
+        layers over ``area_fill``), set when the last layer is written."""
+        s, p, est = self.settings, self.printer, self.estimate
         n = self._k
-        est = self._meter.estimate(s, fade=True)
         slow = est.slow_layers
         return {
             "action": "print",

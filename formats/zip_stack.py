@@ -38,12 +38,6 @@ class ZipArchiveWriter(StackWriter):
         super().__init__(path, grid, meta, force, settings)
         self._out = AtomicFile(self.path)
         self._zip = zipfile.ZipFile(self._out.fh, "w", allowZip64=True)
-        self._k = 0
-
-    def next_layer(self, k: int) -> None:
-        """Check that layer ``k`` is the next one."""
-        if k != self._k:
-            raise ValueError(f"layers must be written in order: expected {self._k}, got {k}")
 
     def add(self, name: str, data, compress: bool) -> None:
         """Write one member (OutputError, and nothing left behind, on failure)."""
