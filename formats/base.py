@@ -72,6 +72,10 @@ class StackWriter:
         return False
 
 
+#: largest 32-bit float
+F32_MAX = float(np.finfo(np.float32).max)
+
+
 class BinaryStackWriter(StackWriter):
     """A printer's single binary file, written through one seekable temporary file.
 
@@ -86,11 +90,27 @@ class BinaryStackWriter(StackWriter):
 
     #: largest file the format's offsets can address (None: no limit)
     max_size: int | None = None
+    #: largest bottom-layer count the format's field holds (u32; an f32 field holds 2**24 exactly)
+    max_bottom_layers: int = 0xFFFFFFFF
+
+    @classmethod
+    def check_settings(cls, settings) -> None:
+        """Refuse times and counts the format's fields cannot hold (FormatError):
+        exposures and layer height beyond a 32-bit float, bottom layers beyond
+        :attr:`max_bottom_layers`."""
+        from slicer.checks import integer, number
+        from slicer.errors import FormatError
+
+        for value, option in ((settings.exposure, "--exposure"), (settings.bottom_exposure, "--bottom-exposure"),
+                              (settings.layer_height, "--layer-height")):
+            number(value, f"{cls.name}: {option}", FormatError, lo=0.0, lo_open=True, hi=F32_MAX)
+        integer(settings.bottom_layers, f"{cls.name}: --bottom-layers", FormatError, lo=0, hi=cls.max_bottom_layers)
 
     def __init__(self, path, grid, meta=None, force=False, settings=None, placeholder: int = 0):
         from .estimate import LayerMeter
         from .thumbnails import TopView
 
+        self.check_settings(settings)
         super().__init__(path, grid, meta, force, settings)
         self._out = AtomicFile(self.path)
         self._meter = LayerMeter()

@@ -193,10 +193,13 @@ class PhotonWriter(BinaryStackWriter):
     machine: Machine
     needs_printer = True
     max_size = 0xFFFFFFFF
+    max_bottom_layers = 2**24                    # the header stores the count as a 32-bit float
 
     @classmethod
     def check_settings(cls, settings) -> None:
-        """Refuse a printer whose display the machine's file cannot hold (FormatError)."""
+        """Refuse a printer whose display the machine's file cannot hold, and
+        values its fields cannot hold (FormatError)."""
+        super().check_settings(settings)
         m, p = cls.machine, settings.printer
         if p is None:
             raise FormatError(f"{m.name}: the format needs a printer profile (--printer)")
@@ -211,7 +214,6 @@ class PhotonWriter(BinaryStackWriter):
 
     def __init__(self, path, grid, meta=None, force=False, settings=None):
         self.printer = plate_printer(self.name, path, grid, settings)
-        self.check_settings(settings)
         m = self.machine
         self.layout = LAYOUTS[m.version]
         self.planes = 8 if settings.antialiased else 1

@@ -297,6 +297,16 @@ def test_ctb_needs_a_printer(ell, tmp_path):
     assert r.exit_code == 2 and "needs --printer" in r.output and not (tmp_path / "x.ctb").exists()
 
 
+@pytest.mark.parametrize("args, needle", [
+    (["--exposure", "1e39"], "ctb: --exposure must be a finite number in (0, 3.40282e+38], got 1e+39"),
+    (["--bottom-layers", "5000000000"],
+     "ctb: --bottom-layers must be an integer from 0 to 4294967295, got 5,000,000,000")])
+def test_values_the_fields_cannot_hold_are_refused_before_work(ell, tmp_path, args, needle):
+    r = run("slice", ell, "-o", tmp_path / "x.ctb", "--printer", "elegoo-saturn", *args)
+    assert r.exit_code == 2 and needle in r.output
+    assert not list(tmp_path.iterdir())
+
+
 def test_same_bytes_whatever_the_thread_count(ell, tmp_path):
     outs = []
     for t in (1, 2):

@@ -377,6 +377,12 @@ def test_a_display_the_machine_cannot_hold_is_refused_before_work(ell, tmp_path)
     assert r.exit_code == 2 and "Photon S" in r.output
 
 
+def test_bottom_layers_beyond_the_float_field_are_refused(ell, tmp_path):
+    r = run("slice", ell, "-o", tmp_path / "x.pwmx", "--bottom-layers", "20000000")
+    assert r.exit_code == 2 and "pwmx: --bottom-layers must be an integer from 0 to 16777216" in r.output
+    assert not list(tmp_path.iterdir())
+
+
 def test_version_1_refuses_non_square_pixels():
     p = dataclasses.replace(PRINTERS["anycubic-photon-s"], display=(68.04, 140.0))
     with pytest.raises(FormatError, match="one pixel size"):
