@@ -14,8 +14,10 @@ from slicer.errors import OutputError
 from .base import AtomicDir, AtomicFile, StackWriter
 from .cli import CliAsciiWriter, CliShortWriter, CliWriter
 from .contour_base import ContourWriter
+from .ctb import CtbV2Writer, CtbWriter
 from .goo import GooWriter
 from .nanodlp import NanoDlpWriter
+from .photon import PHOTON_WRITERS
 from .png_stack import PngStackWriter
 from .sl1 import Sl1sWriter, Sl1Writer
 from .svg import SvgWriter
@@ -31,6 +33,9 @@ WRITERS: dict[str, type[StackWriter]] = {
     "sl1s": Sl1sWriter,
     "goo": GooWriter,
     "nanodlp": NanoDlpWriter,
+    "ctb": CtbWriter,
+    "ctb-v2": CtbV2Writer,
+    **PHOTON_WRITERS,                  # pws, pw0, pwmo, pwma, pwmx, pwmb, pm5s
     # contour formats (ContourWriter: write_layer(k, z, polygons))
     "cli": CliWriter,
     "cli-ascii": CliAsciiWriter,
@@ -41,6 +46,7 @@ WRITERS: dict[str, type[StackWriter]] = {
 
 #: output suffix -> format name (a path without a known suffix is a PNG folder)
 SUFFIXES: dict[str, str] = {".zip": "zip", ".sl1": "sl1", ".sl1s": "sl1s", ".goo": "goo", ".nanodlp": "nanodlp",
+                            ".ctb": "ctb", **{f".{name}": name for name in PHOTON_WRITERS},
                             ".cli": "cli", ".3mf": "3mf", ".svg": "svg"}
 
 

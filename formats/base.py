@@ -1,4 +1,5 @@
-"""Writer protocol and the helpers writers share (PNG bytes, zip entries, build time).
+"""Writer protocol and the helpers writers share (PNG bytes, zip entries, build
+time, fixed-width strings, single-file binary formats).
 
 Atomic publication is :mod:`slicer.atomic` (one implementation for every output)."""
 from __future__ import annotations
@@ -9,6 +10,11 @@ from pathlib import Path
 import numpy as np
 
 from slicer.atomic import AtomicDir, AtomicFile, check_destination
+from slicer.checks import integer, number
+from slicer.errors import FormatError, OutputError
+
+from .estimate import LayerMeter
+from .thumbnails import TopView
 
 
 class StackWriter:
@@ -33,6 +39,9 @@ class StackWriter:
     default_printer: str | None = None
     #: True: the format cannot be written without a printer profile
     needs_printer: bool = False
+    #: print time and resin volume of the written stack (formats.estimate.PrintEstimate),
+    #: set by close() in the formats that know a printer; None otherwise
+    estimate = None
 
     def __init__(self, path, grid, meta: dict | None = None, force: bool = False, settings=None):
         self.path = Path(path)
@@ -40,7 +49,13 @@ class StackWriter:
         self.meta = dict(meta or {})
         self.force = force
         self.settings = settings
+        self._k = 0                        # layers written
         check_destination(self.path, force)
+
+    def next_layer(self, k: int) -> None:
+        """Check that layer ``k`` is the next one."""
+        if k != self._k:
+            raise ValueError(f"layers must be written in order: expected {self._k}, got {k}")
 
     def write_layer(self, k: int, image: np.ndarray) -> None:  # pragma: no cover - protocol
         raise NotImplementedError
@@ -60,6 +75,111 @@ class StackWriter:
         else:
             self.abort()
         return False
+
+
+#: largest 32-bit float
+F32_MAX = float(np.finfo(np.float32).max)
+
+
+class BinaryStackWriter(StackWriter):
+    """A printer's single binary file, written through one seekable temporary file.
+
+    ``__init__`` writes ``placeholder`` zero bytes (the fixed-size tables that
+    come before the layers); ``write_layer`` appends each layer with
+    :meth:`write` and ends with :meth:`layer_done`; :meth:`close` sets
+    :attr:`estimate`, lets :meth:`finish` append what follows the layers and
+    return the tables that need the whole stack (offset -> bytes), writes
+    them over the placeholders and publishes the file. Subclasses set
+    ``self.printer`` before calling ``__init__``.
+    """
+
+    #: largest file the format's offsets can address (None: no limit)
+    max_size: int | None = None
+    #: largest bottom-layer count the format's field holds (u32; an f32 field holds 2**24 exactly)
+    max_bottom_layers: int = 0xFFFFFFFF
+
+    @classmethod
+    def check_settings(cls, settings) -> None:
+        """Refuse times and counts the format's fields cannot hold (FormatError):
+        exposures and layer height beyond a 32-bit float, bottom layers beyond
+        :attr:`max_bottom_layers`."""
+        for value, option in ((settings.exposure, "--exposure"), (settings.bottom_exposure, "--bottom-exposure"),
+                              (settings.layer_height, "--layer-height")):
+            number(value, f"{cls.name}: {option}", FormatError, lo=0.0, lo_open=True, hi=F32_MAX)
+        integer(settings.bottom_layers, f"{cls.name}: --bottom-layers", FormatError, lo=0, hi=cls.max_bottom_layers)
+
+    def __init__(self, path, grid, meta=None, force=False, settings=None, placeholder: int = 0):
+        self.check_settings(settings)
+        super().__init__(path, grid, meta, force, settings)
+        self._out = AtomicFile(self.path)
+        self._meter = LayerMeter()
+        self._top = TopView(self.printer.plate_shape)
+        self.write(b"\0" * placeholder, "the header")
+
+    def tell(self) -> int:
+        """Offset where the next :meth:`write` lands."""
+        return self._out.fh.tell()
+
+    def write(self, data: bytes, what: str) -> None:
+        """Append ``data`` (``what`` names it in errors).
+
+        Raises
+        ------
+        OutputError
+            The write failed, or the file passes :attr:`max_size`; nothing is
+            left at the target.
+        """
+        try:
+            self._out.fh.write(data)
+        except OSError as exc:
+            self.abort()
+            raise OutputError(f"{self.path}: cannot write {what} ({exc})") from None
+        if self.max_size is not None and self.tell() > self.max_size:
+            self.abort()
+            raise OutputError(f"{self.path}: the file passes {self.max_size + 1:,} bytes, beyond the "
+                              f"{self.name} format's offsets")
+
+    def layer_done(self, k: int, image: np.ndarray) -> None:
+        """Record plate image ``k`` for the estimate and previews, after its data."""
+        self._meter.add(image)
+        self._top.add(k, image)
+        self._k += 1
+
+    def finish(self) -> dict[int, bytes]:  # pragma: no cover - protocol
+        """Append what follows the layers; return offset -> bytes to write over the placeholders."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        if self._k != self.grid.layers:
+            self.abort()
+            raise OutputError(f"{self.path}: {self._k} of {self.grid.layers} layers were written")
+        self.estimate = self._meter.estimate(self.settings)
+        parts = self.finish()
+        try:
+            fh = self._out.fh
+            for at, data in sorted(parts.items()):
+                fh.seek(at)
+                fh.write(data)
+            fh.seek(0, 2)
+            self._out.publish(self.force)
+        except OSError as exc:
+            self.abort()
+            raise OutputError(f"{self.path}: cannot finish the output ({exc})") from None
+
+    def abort(self) -> None:
+        self._out.discard()
+
+
+def fixed_string(text: str, n: int) -> bytes:
+    """An ``n``-byte NUL-padded ASCII field holding at most ``n - 1`` characters of ``text``.
+
+    Examples
+    --------
+    >>> fixed_string("ANYCUBIC", 12)
+    b'ANYCUBIC\\x00\\x00\\x00\\x00'
+    """
+    b = text.encode("ascii", "replace")[:n - 1]
+    return b + b"\0" * (n - len(b))
 
 
 def png_bytes(image: np.ndarray) -> bytes:
@@ -94,4 +214,5 @@ def zip_entry(name: str, compress: bool):
     return info
 
 
-__all__ = ["StackWriter", "png_bytes", "build_time", "zip_entry", "check_destination", "AtomicFile", "AtomicDir"]
+__all__ = ["StackWriter", "BinaryStackWriter", "fixed_string", "png_bytes", "build_time", "zip_entry",
+           "check_destination", "AtomicFile", "AtomicDir"]

@@ -29,12 +29,12 @@ import struct
 
 import numpy as np
 
-from slicer.atomic import AtomicFile
 from slicer.errors import OutputError
 
-from .base import StackWriter, build_time
+from .base import BinaryStackWriter, build_time, fixed_string
 from .printers import plate_printer
-from .thumbnails import TopView, rgb565
+from .rle import runs
+from .thumbnails import rgb565
 
 HEADER_SIZE = 195_477
 MAGIC = bytes([0x07, 0x00, 0x00, 0x00, 0x44, 0x4C, 0x50, 0x00])
@@ -44,41 +44,6 @@ LAYER_MAGIC = 0x55
 SMALL_PREVIEW = (116, 116)
 BIG_PREVIEW = (290, 290)
 MAX_RUN = 0xFFFFFFF
-
-
-def _fixed(text: str, n: int) -> bytes:
-    """NUL-padded fixed-width string field."""
-    b = text.encode("ascii", "replace")[:n - 1]
-    return b + b"\0" * (n - len(b))
-
-
-def runs(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Runs of equal values of a row-major image: (values (r,) uint8, lengths (r,) int64).
-
-    Only the band of rows with a non-zero pixel is scanned; the empty rows
-    above and below join the first and last runs.
-    """
-    H, W = image.shape
-    band = np.flatnonzero(image.any(axis=1))
-    if band.size == 0:
-        return np.zeros(1 if H * W else 0, np.uint8), np.full(1 if H * W else 0, H * W, np.int64)
-    r0, r1 = int(band[0]), int(band[-1]) + 1
-    flat = np.ascontiguousarray(image[r0:r1], dtype=np.uint8).reshape(-1)
-    starts = np.concatenate([[0], np.flatnonzero(flat[1:] != flat[:-1]) + 1])
-    lengths = np.diff(np.concatenate([starts, [flat.size]])).astype(np.int64)
-    vals = flat[starts]
-    before, after = r0 * W, (H - r1) * W
-    if before:
-        if vals[0] == 0:
-            lengths[0] += before
-        else:
-            vals, lengths = np.concatenate([[0], vals]).astype(np.uint8), np.concatenate([[before], lengths])
-    if after:
-        if vals[-1] == 0:
-            lengths[-1] += after
-        else:
-            vals, lengths = np.concatenate([vals, [0]]).astype(np.uint8), np.concatenate([lengths, [after]])
-    return vals, lengths
 
 
 def encode_layer(image: np.ndarray) -> tuple[bytes, int]:
@@ -116,7 +81,7 @@ def encode_layer(image: np.ndarray) -> tuple[bytes, int]:
     return out.tobytes(), checksum
 
 
-class GooWriter(StackWriter):
+class GooWriter(BinaryStackWriter):
     """Elegoo GOO file for an Elegoo printer profile."""
 
     name = "goo"
@@ -124,50 +89,33 @@ class GooWriter(StackWriter):
 
     def __init__(self, path, grid, meta=None, force=False, settings=None):
         self.printer = plate_printer(self.name, path, grid, settings)
-        super().__init__(path, grid, meta, force, settings)
         if max(self.printer.native_shape) > 0xFFFF:
-            raise OutputError(f"{self.path}: GOO stores at most 65535 px per side")
-        self._out = AtomicFile(self.path)
-        self._out.fh.write(b"\0" * HEADER_SIZE)
-        self._top = TopView(self.printer.plate_shape)
-        self._k = 0
-        self._grey_sum = 0.0
-        self._seconds = 0.0
+            raise OutputError(f"{path}: GOO stores at most 65535 px per side")
+        super().__init__(path, grid, meta, force, settings, placeholder=HEADER_SIZE)
 
     def write_layer(self, k: int, image: np.ndarray) -> None:
-        if k != self._k:
-            raise OutputError(f"layers must be written in order: expected {self._k}, got {k}")
+        self.next_layer(k)
         s = self.settings
         payload, checksum = encode_layer(self.printer.to_native(image))
         lift_d, lift_v, retract_d, retract_v = self.printer.lift
-        exposure = s.exposure_of(k)
-        rec = struct.pack(">H15fH", 0, self.printer.max_height, s.layer_height * (k + 1), exposure,
+        rec = struct.pack(">H15fH", 0, self.printer.max_height, s.layer_height * (k + 1), s.exposure_of(k),
                           0.0, 0.0, 0.0, 0.0, lift_d, lift_v, 0.0, 0.0, retract_d, retract_v, 0.0, 0.0, 255)
-        try:
-            fh = self._out.fh
-            fh.write(rec + DELIMITER + struct.pack(">IB", len(payload) + 2, LAYER_MAGIC))
-            fh.write(payload)
-            fh.write(bytes([checksum]) + DELIMITER)
-        except OSError as exc:
-            self.abort()
-            raise OutputError(f"{self.path}: cannot write layer {k} ({exc})") from None
-        self._grey_sum += float(image.sum(dtype=np.uint64)) / 255.0
-        self._seconds += exposure + 60.0 * (lift_d / lift_v + retract_d / retract_v)
-        self._top.add(k, image)
-        self._k += 1
+        self.write(rec + DELIMITER + struct.pack(">IB", len(payload) + 2, LAYER_MAGIC) + payload
+                   + bytes([checksum]) + DELIMITER, f"layer {k}")
+        self.layer_done(k, image)
 
     def header(self) -> bytes:
-        """The 195 477-byte header (needs every layer written)."""
-        s, p = self.settings, self.printer
+        """The 195 477-byte header (after :meth:`close` has set :attr:`estimate`:
+        print time and volume, mm³ as Elegoo's spec gives it)."""
+        s, p, est = self.settings, self.printer, self.estimate
         rows, cols = p.native_shape
-        px, py = p.pixel_size
-        volume = self._grey_sum * px * py * s.layer_height          # mm^3
+        volume = est.volume_ml * 1000.0                               # mm^3
         lift_d, lift_v, retract_d, retract_v = p.lift
         gen = self.meta.get("generator", "skelslice")
         parts = [
-            b"V3.0", MAGIC, _fixed("skelslice", 32), _fixed(gen.split()[-1], 24),
-            _fixed(build_time().strftime("%Y-%m-%d %H:%M:%S"), 24), _fixed(p.model, 32), _fixed("DLP", 32),
-            _fixed(f"skelslice {s.layer_height:g} mm", 32),
+            b"V3.0", MAGIC, fixed_string("skelslice", 32), fixed_string(gen.split()[-1], 24),
+            fixed_string(build_time().strftime("%Y-%m-%d %H:%M:%S"), 24), fixed_string(p.model, 32),
+            fixed_string("DLP", 32), fixed_string(f"skelslice {s.layer_height:g} mm", 32),
             struct.pack(">HHH", max(s.aa, 1), 0, 0),
             rgb565(self._top.render(SMALL_PREVIEW)), DELIMITER,
             rgb565(self._top.render(BIG_PREVIEW)), DELIMITER,
@@ -177,30 +125,16 @@ class GooWriter(StackWriter):
             struct.pack(">fI", s.bottom_exposure, s.bottom_layers),
             struct.pack(">16f", lift_d, lift_v, lift_d, lift_v, retract_d, retract_v, retract_d, retract_v,
                         *([0.0] * 8)),
-            struct.pack(">HH?I3f", 255, 255, False, int(round(self._seconds)), volume, volume * 1.1e-3, 0.0),
-            _fixed("$", 8), struct.pack(">I?H", HEADER_SIZE, True, 0),
+            struct.pack(">HH?I3f", 255, 255, False, int(round(est.seconds)), volume, est.weight_g, 0.0),
+            fixed_string("$", 8), struct.pack(">I?H", HEADER_SIZE, True, 0),
         ]
         head = b"".join(parts)
         assert len(head) == HEADER_SIZE, len(head)
         return head
 
-    def close(self) -> None:
-        if self._k != self.grid.layers:
-            self.abort()
-            raise OutputError(f"{self.path}: {self._k} of {self.grid.layers} layers were written")
-        try:
-            fh = self._out.fh
-            fh.write(ENDING)
-            fh.seek(0)
-            fh.write(self.header())
-            fh.seek(0, 2)
-            self._out.publish(self.force)
-        except OSError as exc:
-            self.abort()
-            raise OutputError(f"{self.path}: cannot finish the output ({exc})") from None
-
-    def abort(self) -> None:
-        self._out.discard()
+    def finish(self) -> dict[int, bytes]:
+        self.write(ENDING, "the ending string")
+        return {0: self.header()}
 
 
 __all__ = ["GooWriter", "encode_layer", "runs", "HEADER_SIZE"]

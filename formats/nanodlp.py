@@ -51,6 +51,7 @@ from slicer._kernels.islands import island_sizes as _island_sizes
 from slicer.errors import OutputError
 
 from .base import build_time, png_bytes
+from .estimate import LayerMeter
 from .printers import PrintSettings
 from .thumbnails import TopView, png_rgba
 from .zip_stack import ZipArchiveWriter
@@ -175,7 +176,7 @@ class NanoDlpWriter(ZipArchiveWriter):
         self.display = (cols, rows)                  # PWidth, PHeight
         self._top = TopView((grid.height, grid.width))
         self._info: list[dict] = []
-        self._grey_sum = 0.0
+        self._meter = LayerMeter()
 
     def native(self, image: np.ndarray) -> np.ndarray:
         """The display image of a layer: the printer's native layout, or the
@@ -196,7 +197,7 @@ class NanoDlpWriter(ZipArchiveWriter):
         disp = np.ascontiguousarray(self.native(np.asarray(image, dtype=np.uint8)))
         self.add(f"{k + 1}.png", png_bytes(pack_rgb(disp)), False)
         self._info.append(layer_info(disp, self.pitch))
-        self._grey_sum += float(image.sum(dtype=np.uint64)) / 255.0
+        self._meter.add(image)
         self._top.add(k, image)
         self._k += 1
 
@@ -222,19 +223,18 @@ class NanoDlpWriter(ZipArchiveWriter):
                 "Version": gen.split()[-1], "OS": "any", "Arch": "any", "Profile": False}
 
     def plate_json(self) -> dict:
-        s = self.settings
-        ml = self._grey_sum * float(self.grid.pixel_size[0]) * float(self.grid.pixel_size[1]) \
-            * s.layer_height / 1000.0
+        est = self.print_estimate()                  # also without a printer: PrintEst = the exposures
         t = int(build_time().timestamp())
         return {"PlateID": 0, "ProfileID": 0, "CreatedDate": t, "Updated": t, "Path": self.path.stem,
-                "LayersCount": self._k, "Processed": True, "TotalSolidArea": float(ml),
-                "PrintEst": int(round(self.print_seconds())), **self.bounds()}
+                "LayersCount": self._k, "Processed": True, "TotalSolidArea": float(est.volume_ml),
+                "PrintEst": int(round(est.seconds)), **self.bounds()}
 
-    def print_seconds(self) -> float:
-        """Exposure time of the whole stack, s (motion is the machine's)."""
-        s = self.settings
-        bottom = min(s.bottom_layers, self._k)
-        return bottom * s.bottom_exposure + (self._k - bottom) * s.exposure
+    def print_estimate(self):
+        """:mod:`formats.estimate` of the layers written: exposures, plus the
+        printer's lift and waits with ``--printer`` (NanoDLP's own profile
+        drives the machine; ``PrintEst`` is the estimate with ours)."""
+        px, py = self.grid.pixel_size
+        return self._meter.estimate(self.settings, pixel_area=float(px) * float(py))
 
     def profile_json(self) -> dict:
         s, p = self.settings, self.printer
@@ -277,6 +277,7 @@ class NanoDlpWriter(ZipArchiveWriter):
         return doc
 
     def final_members(self):
+        self.estimate = self.print_estimate() if self.printer is not None else None
         options = _json(self.options_json())
         yield "meta.json", _json(self.meta_json()), True
         yield "info.json", _json(self._info), True

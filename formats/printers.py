@@ -21,10 +21,12 @@ measured PrusaSlicer output.
 
 Profile values (resolution, display size, orientation, mirroring, height)
 come from PrusaSlicer's ``PrusaResearchSLA.ini`` (Prusa) and UVtools'
-``PrusaSlicer/printer/*.ini`` (Elegoo, Anycubic). Exposure times and bottom
-layers are typical starting values for a standard resin at 0.05 mm:
-calibrate them for your resin (``--exposure``, ``--bottom-exposure``,
-``--bottom-layers``).
+``PrusaSlicer/printer/*.ini`` (Elegoo, Phrozen, Creality, Anycubic), which
+also give the lift distances and speeds, the per-layer waits and each
+printer's native file format (``FILEFORMAT_*``; docs/printers.md). Exposure
+times and bottom layers are typical starting values for a standard resin at
+0.05 mm: calibrate them for your resin (``--exposure``,
+``--bottom-exposure``, ``--bottom-layers``).
 """
 from __future__ import annotations
 
@@ -73,10 +75,17 @@ class Printer:
         Preview sizes the format stores.
     lift : (4,) float
         Lift distance (mm), lift speed (mm/min), retract distance (mm),
-        retract speed (mm/min), for formats that store motion.
+        retract speed (mm/min), for formats that store motion and for the
+        print-time estimate (:mod:`formats.estimate`). Prusa printers tilt
+        the vat instead: their lift distances are 0.
     layer_overhead : float, s
-        Time per layer besides exposure (tilt or lift), for print-time
-        estimates.
+        Fixed time per layer besides exposure and lift: the wait before
+        curing the file stores (Anycubic "wait before cure", Chitu "light-off
+        delay"); for Prusa printers the tilt and settle time.
+    slow_overhead : float, s
+        Extra time of a layer whose solid area exceeds
+        :data:`formats.estimate.AREA_FILL` % of the display (Prusa's slow
+        tilt); 0 for lifting printers.
     """
 
     name: str
@@ -97,6 +106,7 @@ class Printer:
     thumbnails: tuple[tuple[int, int], ...] = ((400, 400), (800, 480))
     lift: tuple[float, float, float, float] = (5.0, 65.0, 5.0, 150.0)
     layer_overhead: float = 8.0
+    slow_overhead: float = 0.0
 
     @property
     def pixel_size(self) -> tuple[float, float]:
@@ -107,6 +117,13 @@ class Printer:
     def plate_shape(self) -> tuple[int, int]:
         """(rows, columns) of a plate image."""
         return (self.pixels[1], self.pixels[0])
+
+    @property
+    def native_size(self) -> tuple[float, float]:
+        """(width, height) mm of the display along the stored image's columns and rows."""
+        if self.orientation == "portrait":
+            return (self.display[1], self.display[0])
+        return self.display
 
     @property
     def native_shape(self) -> tuple[int, int]:
@@ -169,22 +186,55 @@ class Printer:
 
 #: name -> Printer
 PRINTERS: dict[str, Printer] = {p.name: p for p in [
+    # Prusa: tilting vat (no lift); fast tilt + settle per layer, +3 s for a slow tilt
     Printer("prusa-sl1", "Original Prusa SL1", "Prusa", (2560, 1440), (120.96, 68.04), "portrait",
-            True, False, 150.0, 0.05, 6.0, 35.0, 10, "sl1", "SL1", layer_overhead=11.0),
+            True, False, 150.0, 0.05, 6.0, 35.0, 10, "sl1", "SL1", lift=(0.0, 65.0, 0.0, 150.0),
+            layer_overhead=11.0, slow_overhead=3.0),
     Printer("prusa-sl1s", "Original Prusa SL1S SPEED", "Prusa", (2560, 1620), (128.0, 81.0), "portrait",
-            True, False, 150.0, 0.05, 2.0, 25.0, 10, "sl1s", "SL1S"),
+            True, False, 150.0, 0.05, 2.0, 25.0, 10, "sl1s", "SL1S", lift=(0.0, 65.0, 0.0, 150.0),
+            slow_overhead=3.0),
+    # Elegoo GOO (the GOO file's waits are 0)
     Printer("elegoo-mars-4-ultra", "ELEGOO Mars 4 Ultra", "Elegoo", (8520, 4320), (153.36, 77.76),
             "landscape", True, False, 165.0, 0.05, 2.5, 30.0, 5, "goo", "ELEGOO Mars 4 Ultra",
-            thumbnails=((290, 290), (116, 116)), lift=(5.0, 100.0, 5.0, 150.0), layer_overhead=6.0),
+            thumbnails=((290, 290), (116, 116)), lift=(5.0, 100.0, 5.0, 150.0), layer_overhead=0.0),
     Printer("elegoo-saturn-3-ultra", "ELEGOO Saturn 3 Ultra", "Elegoo", (11520, 5120), (218.88, 122.88),
             "landscape", True, False, 260.0, 0.05, 2.5, 30.0, 5, "goo", "ELEGOO Saturn 3 Ultra",
-            thumbnails=((290, 290), (116, 116)), lift=(7.0, 70.0, 7.0, 210.0), layer_overhead=7.0),
+            thumbnails=((290, 290), (116, 116)), lift=(7.0, 70.0, 7.0, 210.0), layer_overhead=0.0),
+    # Chitu firmware reading plain CTB v3 (UVtools FILEFORMAT_CTB FILEVERSION_3; light-off delay 0)
+    Printer("elegoo-saturn", "ELEGOO Saturn", "Elegoo", (3840, 2400), (192.0, 120.0), "landscape",
+            True, False, 200.0, 0.05, 2.5, 35.0, 5, "ctb", "ELEGOO SATURN",
+            thumbnails=((400, 300), (200, 125)), lift=(7.0, 70.0, 7.0, 210.0), layer_overhead=0.0),
+    Printer("phrozen-sonic-mini-4k", "Phrozen Sonic Mini 4K", "Phrozen", (3840, 2160), (134.4, 75.6),
+            "landscape", True, False, 130.0, 0.05, 2.0, 30.0, 5, "ctb", "Phrozen Sonic Mini 4K",
+            thumbnails=((400, 300), (200, 125)), lift=(5.0, 65.0, 5.0, 150.0), layer_overhead=0.0),
+    Printer("phrozen-sonic-mighty-4k", "Phrozen Sonic Mighty 4K", "Phrozen", (3840, 2400), (199.68, 124.8),
+            "landscape", True, False, 220.0, 0.05, 2.5, 35.0, 5, "ctb", "Phrozen Sonic Mighty 4K",
+            thumbnails=((400, 300), (200, 125)), lift=(6.0, 60.0, 6.0, 150.0), layer_overhead=0.0),
+    Printer("creality-ld-002h", "Creality LD-002H", "Creality", (1620, 2560), (82.62, 130.56), "landscape",
+            True, False, 160.0, 0.05, 2.5, 40.0, 6, "ctb", "CREALITY LD-002H",
+            thumbnails=((400, 300), (200, 125)), lift=(5.0, 50.0, 5.0, 150.0), layer_overhead=0.0),
+    # Anycubic Photon Workshop formats (UVtools FILEFORMAT_*; wait before cure 2.5 s)
+    Printer("anycubic-photon-s", "Anycubic Photon S", "Anycubic", (1440, 2560), (68.04, 120.96), "landscape",
+            True, False, 165.0, 0.05, 8.0, 60.0, 6, "pws", "Photon S", thumbnails=((224, 168),),
+            lift=(6.0, 60.0, 6.0, 150.0), layer_overhead=2.5),
+    Printer("anycubic-photon-zero", "Anycubic Photon Zero", "Anycubic", (480, 854), (55.4, 98.63), "landscape",
+            True, False, 150.0, 0.05, 8.0, 60.0, 6, "pw0", "Photon Zero", thumbnails=((224, 168),),
+            lift=(6.0, 60.0, 6.0, 150.0), layer_overhead=2.5),
+    Printer("anycubic-photon-mono", "Anycubic Photon Mono", "Anycubic", (1620, 2560), (82.62, 130.56),
+            "landscape", True, False, 165.0, 0.05, 2.0, 35.0, 6, "pwmo", "Photon Mono", thumbnails=((224, 168),),
+            lift=(6.0, 150.0, 6.0, 150.0), layer_overhead=2.5),
+    Printer("anycubic-photon-mono-4k", "Anycubic Photon Mono 4K", "Anycubic", (3840, 2400), (134.4, 84.0),
+            "landscape", True, False, 165.0, 0.05, 2.0, 35.0, 6, "pwma", "Photon Mono 4K",
+            thumbnails=((224, 168),), lift=(6.0, 150.0, 6.0, 150.0), layer_overhead=2.5),
     Printer("anycubic-photon-mono-x", "Anycubic Photon Mono X", "Anycubic", (3840, 2400), (192.0, 120.0),
-            "landscape", True, False, 245.0, 0.05, 2.0, 40.0, 6, "zip", "Photon Mono X",
-            lift=(8.0, 120.0, 8.0, 120.0)),
+            "landscape", True, False, 245.0, 0.05, 2.0, 40.0, 6, "pwmx", "Photon Mono X",
+            thumbnails=((224, 168),), lift=(8.0, 120.0, 8.0, 120.0), layer_overhead=2.5),
+    Printer("anycubic-photon-mono-x-6k", "Anycubic Photon Mono X 6K", "Anycubic", (5760, 3600), (198.15, 123.84),
+            "landscape", True, False, 245.0, 0.05, 2.0, 35.0, 6, "pwmb", "Photon Mono X 6K",
+            thumbnails=((224, 168),), lift=(8.0, 120.0, 8.0, 120.0), layer_overhead=2.5),
     Printer("anycubic-photon-mono-m5s", "Anycubic Photon Mono M5s", "Anycubic", (11520, 5120),
-            (218.88, 122.88), "landscape", True, False, 200.0, 0.05, 1.5, 25.0, 4, "zip",
-            "Photon Mono M5s", thumbnails=((224, 168),), lift=(8.0, 120.0, 8.0, 120.0)),
+            (218.88, 122.88), "landscape", True, False, 200.0, 0.05, 1.5, 25.0, 4, "pm5s",
+            "Photon Mono M5s", thumbnails=((224, 168),), lift=(8.0, 120.0, 8.0, 120.0), layer_overhead=2.5),
 ]}
 
 

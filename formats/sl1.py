@@ -30,6 +30,7 @@ import numpy as np
 from slicer.errors import FormatError
 
 from .base import build_time, png_bytes
+from .estimate import AREA_FILL, LayerMeter
 from .printers import plate_printer
 from .thumbnails import TopView, png_rgba
 from .zip_stack import ZipArchiveWriter
@@ -38,8 +39,6 @@ from .zip_stack import ZipArchiveWriter
 EXPOSURE_RANGE = (0.1, 60.0)
 FIRST_EXPOSURE_RANGE = (0.1, 120.0)
 FADE_RANGE = (2, 200)
-#: percentage of the display above which a layer tilts slowly (PrusaSlicer area_fill)
-AREA_FILL = 50.0
 
 
 def job_dir(path) -> str:
@@ -86,28 +85,22 @@ class Sl1Writer(ZipArchiveWriter):
         super().__init__(path, grid, meta, force, settings)
         self.job = job_dir(self.path)
         self._top = TopView(self.printer.plate_shape)
-        self._slow = 0
-        self._grey_sum = 0.0
+        self._meter = LayerMeter()
 
     def write_layer(self, k: int, image: np.ndarray) -> None:
         self.next_layer(k)
         self.add(f"{self.job}{k:05d}.png", png_bytes(self.printer.to_native(image)), False)
-        filled = float(np.count_nonzero(image >= 128)) / image.size * 100.0
-        self._slow += filled > AREA_FILL
-        self._grey_sum += float(image.sum(dtype=np.uint64)) / 255.0
+        self._meter.add(image)
         self._top.add(k, image)
         self._k += 1
 
     def config_ini(self) -> dict:
-        """The ``config.ini`` keys (docs/formats.md §1.1)."""
-        s, p = self.settings, self.printer
+        """The ``config.ini`` keys (docs/formats.md §1.1); ``printTime`` and
+        ``usedMaterial`` are :attr:`estimate` (faded exposures, the slow tilt of
+        layers over ``area_fill``), set when the last layer is written."""
+        s, p, est = self.settings, self.printer, self.estimate
         n = self._k
-        px, py = p.pixel_size
-        ml = self._grey_sum * px * py * s.layer_height / 1000.0
-        fade = min(s.bottom_layers, n)
-        exposures = sum(s.bottom_exposure - (s.bottom_exposure - s.exposure) * i / max(fade, 1)
-                        for i in range(fade)) + max(n - fade, 0) * s.exposure
-        print_time = exposures + n * p.layer_overhead + 3.0 * self._slow
+        slow = est.slow_layers
         return {
             "action": "print",
             "expTime": _num(s.exposure),
@@ -119,15 +112,15 @@ class Sl1Writer(ZipArchiveWriter):
             "layerHeight": _num(s.layer_height),
             "materialName": f"Generic resin @{_num(s.layer_height)}",
             "numFade": s.bottom_layers,
-            "numFast": n - self._slow,
-            "numSlow": self._slow,
+            "numFast": n - slow,
+            "numSlow": slow,
             "printProfile": f"{_num(s.layer_height)} skelslice",
-            "printTime": f"{print_time:.6f}",
+            "printTime": f"{est.seconds:.6f}",
             "printerModel": self.printer_model,
             "printerProfile": p.label,
             "printerVariant": "default",
             "prusaSlicerVersion": f"skelslice-{self.meta.get('generator', 'skelslice').split()[-1]}",
-            "usedMaterial": f"{ml:.6f}",
+            "usedMaterial": f"{est.volume_ml:.6f}",
         }
 
     def prusaslicer_ini(self) -> dict:
@@ -176,6 +169,7 @@ class Sl1Writer(ZipArchiveWriter):
         }
 
     def final_members(self):
+        self.estimate = self._meter.estimate(self.settings, fade=True)
         yield "config.ini", ini_text(self.config_ini()), True
         yield "prusaslicer.ini", ini_text(self.prusaslicer_ini()), True
         for w, h in self.printer.thumbnails:

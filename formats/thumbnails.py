@@ -81,11 +81,12 @@ def png_rgba(image: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def rgb565(image: np.ndarray) -> bytes:
-    """Big-endian RGB565 bytes (row-major) of a (h, w, 3+) uint8 image, as GOO stores previews."""
+def rgb565(image: np.ndarray, big_endian: bool = True) -> bytes:
+    """RGB565 bytes (row-major, red in the high bits) of a (h, w, 3+) uint8 image:
+    big-endian as GOO stores previews, little-endian as Photon Workshop does."""
     rgb = image[..., :3].astype(np.uint16)
     v = ((rgb[..., 0] >> 3) << 11) | ((rgb[..., 1] >> 2) << 5) | (rgb[..., 2] >> 3)
-    return v.astype(">u2").tobytes()
+    return v.astype(">u2" if big_endian else "<u2").tobytes()
 
 
 __all__ = ["TopView", "png_rgba", "rgb565"]

@@ -21,6 +21,7 @@ from slicer.atomic import AtomicFile
 from slicer.errors import OutputError
 
 from .base import StackWriter, png_bytes, zip_entry
+from .estimate import LayerMeter
 from .png_stack import LAYER_NAME, slices_doc
 
 
@@ -37,12 +38,6 @@ class ZipArchiveWriter(StackWriter):
         super().__init__(path, grid, meta, force, settings)
         self._out = AtomicFile(self.path)
         self._zip = zipfile.ZipFile(self._out.fh, "w", allowZip64=True)
-        self._k = 0
-
-    def next_layer(self, k: int) -> None:
-        """Check that layer ``k`` is the next one."""
-        if k != self._k:
-            raise OutputError(f"layers must be written in order: expected {self._k}, got {k}")
 
     def add(self, name: str, data, compress: bool) -> None:
         """Write one member (OutputError, and nothing left behind, on failure)."""
@@ -82,12 +77,21 @@ class ZipStackWriter(ZipArchiveWriter):
 
     name = "zip"
 
+    def __init__(self, path, grid, meta=None, force=False, settings=None):
+        super().__init__(path, grid, meta, force, settings)
+        printer = settings is not None and settings.printer is not None
+        self._meter = LayerMeter() if printer else None          # for the print estimate
+
     def write_layer(self, k: int, image: np.ndarray) -> None:
         self.next_layer(k)
         self.add(LAYER_NAME.format(k), png_bytes(image), False)
+        if self._meter is not None:
+            self._meter.add(image)
         self._k += 1
 
     def final_members(self):
+        if self._meter is not None:
+            self.estimate = self._meter.estimate(self.settings)
         files = [LAYER_NAME.format(k) for k in range(self._k)]
         doc = slices_doc(self.grid, files, self.meta, self.settings)
         return [("slices.json", json.dumps(doc, indent=1) + "\n", True)]

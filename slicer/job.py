@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from formats import WRITERS
+from formats.estimate import print_estimate
 
 from ._version import __version__
 from .antialias import output_layers
@@ -105,8 +106,9 @@ def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: boo
         if report is not None:
             report(plan.describe())
         if dry_run:
+            est = print_estimate(resolved.settings, plan.grid.layers) if resolved.printer else None
             return {**plan.grid.to_dict(), "plan": plan.to_dict(), "plan_text": plan.describe(), "dry_run": True,
-                    "output": str(out), "format": resolved.fmt}
+                    "output": str(out), "format": resolved.fmt, "estimate": est and est.to_dict()}
         res = slice_planned(*args, plan=plan, executor=executor, executor_info=executor_info,
                             workers=scale.workers, scheduler=scale.scheduler, progress=progress)
     else:
@@ -119,8 +121,9 @@ def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: boo
     meta = {"generator": f"skelslice {__version__}", "method": opts.method, "bucket": res.stats["bucket"]}
     if out_opts.scene_name:
         meta["scene"] = out_opts.scene_name
+    written: dict = {}
     write_s = write_stack(res, out, resolved.fmt, meta, out_opts.force, progress, skel=skel,
-                          contour_tol=out_opts.contour_tol, settings=resolved.settings)
+                          contour_tol=out_opts.contour_tol, settings=resolved.settings, info=written)
     contour_info = None
     placement = plate_placement(res, resolved.settings)
     if out_opts.contours is not None:
@@ -132,7 +135,8 @@ def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: boo
     else:
         grid = res.grid if placement is None else placement.grid
     return {**grid.to_dict(), **res.stats, "write_seconds": write_s, "runs": res.n_runs,
-            "output": str(out), "format": resolved.fmt, "contours": contour_info}
+            "output": str(out), "format": resolved.fmt, "contours": contour_info,
+            "estimate": written.get("estimate") and written["estimate"].to_dict()}
 
 
 def footprint_lower_bound(skel: Skeleton, grid: SliceGrid, probes: int = 256) -> np.ndarray | None:

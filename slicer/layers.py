@@ -23,7 +23,7 @@ from .slicing import SliceResult
 
 def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | None = None,
                 force: bool = False, progress: bool | None = None, skel: Skeleton | None = None,
-                contour_tol: float = 1e-3, settings=None) -> float:
+                contour_tol: float = 1e-3, settings=None, info: dict | None = None) -> float:
     """Stream the layers of a result to an output, atomically.
 
     Parameters
@@ -49,6 +49,9 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
         :func:`slicer.antialias.output_layers`); None writes ``result``'s own layers.
         With a printer, contour formats are placed on the plate too (the same
         layers and position as the images, coordinates in plate mm).
+    info : dict, optional
+        Receives ``estimate``: the writer's print time and resin volume
+        (:class:`formats.estimate.PrintEstimate`), None if it has none.
 
     Returns
     -------
@@ -81,6 +84,8 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
             for k, img in enumerate(tqdm(layers, total=grid.layers, unit="layer", disable=hide, leave=False,
                                          desc="writing")):
                 writer.write_layer(k, img)
+    if info is not None:
+        info["estimate"] = getattr(writer, "estimate", None)
     return time.perf_counter() - t0
 
 

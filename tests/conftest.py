@@ -2,19 +2,35 @@
 
 ``checker``: the Rust checker in ``tests/readers`` (our cargo project around
 the ``colain``, ``goo`` and ``msla_format`` crates), built once per session with
-``cargo build --release --locked``; tests that use it skip, naming the
-reason, where cargo is missing.
+``cargo build --release --locked``.
+
+``uv3dp``: the Go readers in ``tests/readers_go`` (the ``uv3dp`` command line
+and ``uv3dp-layers``, both on ``github.com/ezrec/uv3dp`` v1.2.12), built once
+per session by ``tests/readers_go/build``.
+
+Tests that use them skip, naming the reason, where cargo or Go is missing;
+with ``SKELSLICE_REQUIRE_READERS=1`` (set by ``.ci/run``) they fail instead:
+in CI a skipped reader is not a pass.
 """
 from __future__ import annotations
 
 import os
 import shutil
 import subprocess
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
 READERS = Path(__file__).resolve().parent / "readers"
+READERS_GO = Path(__file__).resolve().parent / "readers_go"
+
+
+def missing_tool(reason: str) -> None:
+    """Skip (or, with ``SKELSLICE_REQUIRE_READERS`` set, fail) for a missing toolchain."""
+    if os.environ.get("SKELSLICE_REQUIRE_READERS", "").strip() not in ("", "0"):
+        pytest.fail(f"{reason}; SKELSLICE_REQUIRE_READERS is set, so every reader must run")
+    pytest.skip(reason)
 
 
 @pytest.fixture(scope="session")
@@ -22,7 +38,7 @@ def checker() -> Path:
     """Path of the built ``skelslice-readers`` executable."""
     cargo = shutil.which("cargo") or str(Path.home() / ".cargo" / "bin" / "cargo")
     if not Path(cargo).exists():
-        pytest.skip("cargo is not installed: cannot build the Rust checker in tests/readers")
+        missing_tool("cargo is not installed: cannot build the Rust checker in tests/readers")
     env = {**os.environ, "CARGO_TARGET_DIR": str(READERS / "target")}
     r = subprocess.run([cargo, "build", "--release", "--locked", "--quiet",
                         "--manifest-path", str(READERS / "Cargo.toml")],
@@ -31,3 +47,25 @@ def checker() -> Path:
     exe = READERS / "target" / "release" / "skelslice-readers"
     assert exe.is_file()
     return exe
+
+
+@dataclass(frozen=True)
+class Uv3dp:
+    """The built Go readers: ``cli`` (the uv3dp command line) and ``layers`` (uv3dp-layers)."""
+
+    cli: Path
+    layers: Path
+
+
+@pytest.fixture(scope="session")
+def uv3dp() -> Uv3dp:
+    """The uv3dp command line and ``uv3dp-layers``, built by ``tests/readers_go/build``."""
+    go = shutil.which("go") or "/usr/local/go/bin/go"
+    if not Path(go).exists():
+        missing_tool("go is not installed: cannot build uv3dp in tests/readers_go")
+    env = {**os.environ, "PATH": f"{Path(go).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
+    r = subprocess.run(["bash", str(READERS_GO / "build")], capture_output=True, text=True, timeout=1800, env=env)
+    assert r.returncode == 0, f"tests/readers_go/build failed:\n{r.stdout}\n{r.stderr}"
+    tools = Uv3dp(READERS_GO / "bin" / "uv3dp", READERS_GO / "bin" / "uv3dp-layers")
+    assert tools.cli.is_file() and tools.layers.is_file()
+    return tools

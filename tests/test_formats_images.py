@@ -4,11 +4,13 @@
   every header offset, record, checksum and pixel; plus the ``goo`` crate
   checker (``tests/readers``, built by the ``checker`` fixture where cargo exists).
 * SL1/SL1S: every reader rule of docs/formats.md §1.3 (PrusaSlicer importer,
-  Prusa firmware, UVtools) checked on our archives; and, when the Debian
-  ``prusa-slicer`` package is installed, ``prusa-slicer --load
-  prusaslicer.ini`` accepts our profile (and rejects a corrupted one).
+  Prusa firmware, UVtools) checked on our archives; uv3dp (the ``uv3dp``
+  fixture) reads them as a second SL1 reader, every layer pixel for pixel;
+  and, when the Debian ``prusa-slicer`` package is installed, ``prusa-slicer
+  --load prusaslicer.ini`` accepts our profile (and rejects a corrupted one).
 * zip: ``slices.json`` keys and the images equal the PNG stack's.
-* Atomicity: a killed process leaves nothing at the target.
+* Atomicity: a killed process leaves nothing at the target (every printer
+  format, CTB and Anycubic included).
 """
 from __future__ import annotations
 
@@ -318,6 +320,38 @@ def test_sl1s_aa_layers_are_grey_and_threshold_like_the_binary_job(jobs, name):
         assert diff < 0.1 * total                                        # same shape at the 128 threshold
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("name, printer", [("e.sl1", "prusa-sl1"), ("e.sl1s", "prusa-sl1s"), ("az.sl1s", "prusa-sl1s")])
+def test_sl1_read_by_uv3dp(uv3dp, jobs, tmp_path, name, printer):
+    """uv3dp's SL1 reader (the ``uv3dp`` fixture) as a second SL1 reader: its command
+    line converts our archive to its .uvj; every layer equals our PNG pixel for pixel
+    and the sizes and exposures are ours. uv3dp takes the ``.sl1`` suffix only (an
+    SL1S archive has the same layout) and reads SL1 as portrait (X = display_pixels_y);
+    it counts numFast layers and takes numSlow as its bottom count, numFade as fade."""
+    from uv3dp_checks import uv3dp_convert
+
+    p = PRINTERS[printer]
+    src = tmp_path / "job.sl1"
+    shutil.copy(jobs[name], src)
+    config, layers = uv3dp_convert(uv3dp, src, tmp_path / "job.uvj")
+    with zipfile.ZipFile(jobs[name]) as z:
+        cfg = _ini(z.read("config.ini").decode())
+        ours = [np.asarray(Image.open(z.open(f"{cfg['jobDir']}{k:05d}.png")))
+                for k in range(int(cfg["numFast"]) + int(cfg["numSlow"]))]
+    prop = config["Properties"]
+    size = prop["Size"]
+    assert int(cfg["numSlow"]) == 0 and size["Layers"] == len(ours) > 3
+    assert (size["X"], size["Y"]) == (p.pixels[1], p.pixels[0])
+    assert (size["Millimeter"]["X"], size["Millimeter"]["Y"]) == pytest.approx((p.display[1], p.display[0]))
+    assert size["LayerHeight"] == pytest.approx(0.2)
+    assert prop["Exposure"]["LightOnTime"] == pytest.approx(p.exposure)
+    assert prop["Bottom"]["LightOnTime"] == pytest.approx(p.bottom_exposure)
+    assert prop["Bottom"]["Transition"] == p.bottom_layers
+    for k, (theirs, mine) in enumerate(zip(layers, ours)):
+        assert np.array_equal(theirs, mine), f"layer {k}"
+    assert len({int(v) for img in layers for v in np.unique(img)}) > (3 if name.startswith("az") else 1)
+
+
 def _stl_box(path):
     import trimesh
 
@@ -413,21 +447,30 @@ def test_python_m_slicer_writes_sl1s(ell, tmp_path):
         assert z.testzip() is None and "config.ini" in z.namelist()
 
 
-@pytest.mark.parametrize("ext", ["sl1s", "goo", "zip", "nanodlp"])
+#: printer of each format in the kill test, and the temporary-file size that means layers are being written
+#: (past the placeholder header and layer table the format writes first)
+KILL_JOBS = {"sl1s": ("prusa-sl1s", 50_000), "goo": ("elegoo-saturn-3-ultra", HEADER_SIZE + 500),
+             "zip": ("prusa-sl1s", 50_000), "nanodlp": ("prusa-sl1s", 50_000),
+             "ctb": ("elegoo-saturn", 248 + 13 + 36 * 3000 + 20_000), "pwmx": ("anycubic-photon-mono-x", 250_000),
+             "pws": ("anycubic-photon-s", 250_000)}
+
+
+@pytest.mark.parametrize("ext", sorted(KILL_JOBS))
 def test_killed_process_leaves_no_output(tmp_path, ext):
     """SIGKILL while layers are written: nothing appears at the target."""
     scene = tmp_path / "tall.json"
     n = 30                                                  # a 60 mm post of 2 mm segments: 3000 layers
     Skeleton([[0, 0, 2.0 * i] for i in range(n + 1)], [[i, i + 1] for i in range(n)], [[0.5, 0.5]] * n).save(scene)
     out = tmp_path / f"out.{ext}"
-    args = ["--printer", "elegoo-saturn-3-ultra"] if ext == "goo" else ["--printer", "prusa-sl1s"]
+    printer, started = KILL_JOBS[ext]
     proc = subprocess.Popen([sys.executable, "-m", "slicer", "slice", str(scene), "-o", str(out), "-q",
-                             "--layer-height", "0.02", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                             "--layer-height", "0.02", "--printer", printer],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 300
     tmp = None
     while time.time() < deadline and proc.poll() is None:
         tmps = [p for p in tmp_path.iterdir() if p.name.startswith(f".{out.name}.tmp-")]
-        if tmps and tmps[0].stat().st_size > (HEADER_SIZE + 500 if ext == "goo" else 50_000):
+        if tmps and tmps[0].stat().st_size > started:
             tmp = tmps[0]
             break
         time.sleep(0.05)

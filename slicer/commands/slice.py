@@ -4,6 +4,7 @@ from __future__ import annotations
 import click
 
 from formats.base import check_destination
+from formats.estimate import PrintEstimate
 
 from ..config import config_option
 from ..executors import executor_info
@@ -52,6 +53,8 @@ def command(scene, out, radius, quiet, dry_run, verbose, **options):
             f"{summary['width']} x {summary['height']} px x {summary['layers']} layers -> {out} [{summary['format']}] "
             f"({job.trace.method}: trace {summary['trace_seconds']:.2f} s, {summary['evaluations']:,} evaluations, "
             f"write {summary['write_seconds']:.2f} s)")
+        if summary.get("estimate"):
+            click.echo(PrintEstimate.from_dict(summary["estimate"]).describe())
 
 
 def _print_dry_run(skel, scene, out, summary, job) -> None:
@@ -65,5 +68,8 @@ def _print_dry_run(skel, scene, out, summary, job) -> None:
     where = s.executor + (f" at {s.scheduler}" if s.scheduler else "") + (f", {s.workers} workers" if s.workers else "")
     click.echo(f"executor:  {where}")
     click.echo(summary["plan_text"])
+    if summary.get("estimate"):
+        click.echo(f"estimate:  {PrintEstimate.from_dict(summary['estimate']).describe()} "
+                   f"(the grid's layers, an upper bound; resin once sliced)")
     for w in scene_stats(skel, g["pixel_size"][0])["warnings"]:
         click.echo(f"warning:   {w['message']}")
