@@ -8,7 +8,7 @@
   ``prusa-slicer`` package is installed, ``prusa-slicer --load
   prusaslicer.ini`` accepts our profile (and rejects a corrupted one).
 * zip: ``slices.json`` keys and the images equal the PNG stack's.
-* Atomicity: a killed process leaves nothing at the target.
+* Atomicity: a signalled process leaves nothing at the target.
 """
 from __future__ import annotations
 
@@ -21,7 +21,6 @@ import signal
 import struct
 import subprocess
 import sys
-import time
 import zipfile
 from pathlib import Path
 
@@ -33,6 +32,7 @@ from hypothesis import strategies as st
 from PIL import Image
 
 from formats.goo import HEADER_SIZE, encode_layer
+from interrupting import interrupt_and_check, start_slice, wait_mid_write
 from formats.printers import PRINTERS
 from slicer import Skeleton
 from slicer.cli import main
@@ -413,28 +413,20 @@ def test_python_m_slicer_writes_sl1s(ell, tmp_path):
         assert z.testzip() is None and "config.ini" in z.namelist()
 
 
-@pytest.mark.parametrize("ext", ["sl1s", "goo", "zip", "nanodlp"])
-def test_killed_process_leaves_no_output(tmp_path, ext):
-    """SIGKILL while layers are written: nothing appears at the target."""
+@pytest.mark.parametrize("ext, sig", [("sl1s", signal.SIGKILL), ("nanodlp", signal.SIGKILL),
+                                      ("goo", signal.SIGKILL), ("goo", signal.SIGINT), ("goo", signal.SIGTERM)],
+                         ids=["sl1s-kill", "nanodlp-kill", "goo-kill", "goo-int", "goo-term"])
+def test_signal_mid_write_leaves_no_output(tmp_path, ext, sig):
+    """A signal while the printer file's layers are written: nothing appears
+    at the target (SIGINT/SIGTERM also remove the temporary; see
+    interrupting.interrupt_and_check). The zip and PNG stack writers are
+    interrupted in test_cli_scale."""
     scene = tmp_path / "tall.json"
     n = 30                                                  # a 60 mm post of 2 mm segments: 3000 layers
     Skeleton([[0, 0, 2.0 * i] for i in range(n + 1)], [[i, i + 1] for i in range(n)], [[0.5, 0.5]] * n).save(scene)
     out = tmp_path / f"out.{ext}"
     args = ["--printer", "elegoo-saturn-3-ultra"] if ext == "goo" else ["--printer", "prusa-sl1s"]
-    proc = subprocess.Popen([sys.executable, "-m", "slicer", "slice", str(scene), "-o", str(out), "-q",
-                             "--layer-height", "0.02", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    deadline = time.time() + 300
-    tmp = None
-    while time.time() < deadline and proc.poll() is None:
-        tmps = [p for p in tmp_path.iterdir() if p.name.startswith(f".{out.name}.tmp-")]
-        if tmps and tmps[0].stat().st_size > (HEADER_SIZE + 500 if ext == "goo" else 50_000):
-            tmp = tmps[0]
-            break
-        time.sleep(0.05)
-    if proc.poll() is not None:
-        pytest.skip("the job finished before it could be interrupted")
-    assert tmp is not None, "no temporary file appeared"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert not out.exists()
+    proc = start_slice(scene, out, "-q", "--layer-height", "0.02", *args)
+    wait_mid_write(proc, out, size=HEADER_SIZE + 500 if ext == "goo" else 50_000)
+    interrupt_and_check(proc, out, sig)
     assert [p.name for p in tmp_path.iterdir() if not p.name.startswith(".")] == ["tall.json"]
