@@ -55,13 +55,6 @@ NOISE = 1e-12
 REL, REL16 = 1e-10, 5e-9
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """Thousands of small batches: one thread (no pool wake-up per call)."""
-    with serial():
-        yield
-
-
 class Ray:
     """One segment and one ray ``o + t d``, with the kernels' view of them."""
 
@@ -163,7 +156,13 @@ def assert_unimodal(ray, t, f, what):
 
 def check_ray(ray: Ray, pieces=()):
     """Every property of the module docstring for one ray; ``pieces`` are
-    extra fractions (u, v) of [t_in, t_out] delimiting pieces to test."""
+    extra fractions (u, v) of [t_in, t_out] delimiting pieces to test.
+    Returns the field sampled on [t_in, t_out] (None for a miss)."""
+    with serial():                  # many small batches: no thread-pool wake-up per call
+        return _check_ray(ray, pieces)
+
+
+def _check_ray(ray, pieces):
     L = ray.seg[0, 6]
     reach = L + 2 * ray.skel.sigma * ray.seg[0, 9]
     if not ray.hit:
