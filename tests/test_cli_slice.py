@@ -147,3 +147,25 @@ def test_signal_while_writing_a_traced_result_leaves_no_output(tmp_path, sig):
     wait_mid_write(proc, out, layers=5)
     interrupt_and_check(proc, out, sig)
     assert [p.name for p in tmp_path.iterdir() if not p.name.startswith(".")] == ["tall.json"]
+
+
+def test_sigterm_is_handled_only_while_a_command_runs(scene, tmp_path, monkeypatch):
+    """The SIGTERM handler (a clean exit, like Ctrl-C) is in force inside the
+    command and restored afterwards, so an embedding process keeps its own."""
+    import slicer.job
+
+    real = slicer.job.run_slice
+    seen = []
+
+    def spy(*a, **k):
+        seen.append(signal.getsignal(signal.SIGTERM))
+        return real(*a, **k)
+
+    monkeypatch.setattr(slicer.job, "run_slice", spy)
+    before = signal.getsignal(signal.SIGTERM)
+    assert run("slice", scene, "-o", tmp_path / "o", "--pixel-size", "0.1", "-q").exit_code == 0
+    assert len(seen) == 1 and seen[0] not in (signal.SIG_DFL, signal.SIG_IGN, None)
+    assert signal.getsignal(signal.SIGTERM) == before
+    with pytest.raises(SystemExit) as exc:
+        seen[0](signal.SIGTERM, None)
+    assert exc.value.code == 128 + signal.SIGTERM
