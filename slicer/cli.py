@@ -4,10 +4,18 @@ The group only parses and dispatches; each command lives in
 :mod:`slicer.commands`.
 Any :class:`~slicer.errors.SkelsliceError` becomes a one-line message on
 stderr and exit status 2, never a traceback.
+
+SIGTERM (what ``kill``, ``timeout`` and job schedulers send) is handled like
+Ctrl-C: while a command runs, it raises :class:`SystemExit` (status 143,
+128 + SIGTERM) in the main thread, so every writer's abort path removes its
+hidden temporary output, as it does for :class:`KeyboardInterrupt`.
 """
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
+import threading
 
 import click
 
@@ -15,15 +23,42 @@ from .commands import COMMANDS
 from .errors import SkelsliceError
 
 
+#: exit status after SIGTERM (the shell's 128 + signal number)
+TERMINATED = 128 + signal.SIGTERM
+
+
+def _on_sigterm(signum, frame):
+    click.echo("error: terminated (SIGTERM)", err=True)
+    raise SystemExit(TERMINATED)
+
+
+@contextlib.contextmanager
+def _sigterm_as_exit():
+    """While the block runs, SIGTERM raises SystemExit in the main thread
+    (restored afterwards; left alone off the main thread, or where SIGTERM is
+    ignored or already handled, as Python treats SIGINT)."""
+    if threading.current_thread() is not threading.main_thread() \
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+    signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 class _Group(click.Group):
-    """Click group that turns skelslice errors into ``error: ...`` + exit 2."""
+    """Click group that turns skelslice errors into ``error: ...`` + exit 2,
+    and SIGTERM into a clean exit (status 143) like Ctrl-C."""
 
     def invoke(self, ctx):
-        try:
-            return super().invoke(ctx)
-        except SkelsliceError as exc:
-            click.echo(f"error: {exc}", err=True)
-            sys.exit(2)
+        with _sigterm_as_exit():
+            try:
+                return super().invoke(ctx)
+            except SkelsliceError as exc:
+                click.echo(f"error: {exc}", err=True)
+                sys.exit(2)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

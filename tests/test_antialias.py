@@ -147,11 +147,8 @@ def test_without_aa_layers_stay_binary():
 def test_aa_z_sums_to_exact_chord_of_horizontal_strut():
     """Σ_k coverage_k h over a column = inside length of the ray = 2 sqrt(r² - y²)."""
     r, px, h = 0.5, 0.05, 0.1
-    try:
-        res = slice_skeleton(_strut(r, vertical=False), px, layer_height=h, bounds=(-1, -0.7, -0.7, 1, 0.7, 0.7),
-                             spans=True)
-    except TypeError:
-        pytest.skip("slice_skeleton has no spans option yet")
+    res = slice_skeleton(_strut(r, vertical=False), px, layer_height=h, bounds=(-1, -0.7, -0.7, 1, 0.7, 0.7),
+                         spans=True)
     grid, layers = render(res, PrintSettings(None, h, aa_z=True))
     total = sum(img.astype(float) / 255.0 for img in layers) * h
     ys = grid.centres_y()

@@ -2,13 +2,13 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
+import signal
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from interrupting import interrupt_and_check, start_slice, wait_mid_write
 from slicer import Skeleton
 from slicer.cli import main
 
@@ -134,28 +134,38 @@ def test_failure_mid_write_leaves_nothing(scene, tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_killed_process_leaves_no_output(scene, tmp_path):
-    """SIGKILL during the write: the final folder never appears half-written."""
-    import signal
-    import time
-
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["term", "kill"])
+def test_signal_while_writing_a_traced_result_leaves_no_output(tmp_path, sig):
+    """The whole model traced first, then 6000 layers written (each file
+    fsynced): SIGTERM or SIGKILL during the write leaves nothing at the
+    target (streamed slabs: test_cli_scale)."""
+    scene = tmp_path / "tall.json"
+    n = 30                                                  # a 60 mm post: 6000 layers of 0.01 mm
+    Skeleton([[0, 0, 2.0 * i] for i in range(n + 1)], [[i, i + 1] for i in range(n)], [[0.5, 0.5]] * n).save(scene)
     out = tmp_path / "stack"
-    big = tmp_path / "big.json"
-    from slicer.lattice import generate_lattice
-    generate_lattice("bcc", cells=(3, 3, 3), cell_size=4.0, radius=0.5).save(big)
-    proc = subprocess.Popen([sys.executable, "-m", "slicer", "slice", str(big), "-o", str(out),
-                             "--pixel-size", "0.02", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    # wait until the temporary folder holds some layers, then kill
-    deadline = time.time() + 120
-    while time.time() < deadline:
-        tmps = [p for p in tmp_path.iterdir() if p.name.startswith(".stack.tmp-")]
-        if tmps and len(list(tmps[0].glob("*.png"))) > 5:
-            break
-        if proc.poll() is not None:
-            break
-        time.sleep(0.05)
-    if proc.poll() is not None:
-        pytest.skip("the job finished before it could be interrupted")
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert not out.exists()
+    proc = start_slice(scene, out, "--pixel-size", "0.015", "--layer-height", "0.01", "-q")
+    wait_mid_write(proc, out, layers=5)
+    interrupt_and_check(proc, out, sig)
+    assert [p.name for p in tmp_path.iterdir() if not p.name.startswith(".")] == ["tall.json"]
+
+
+def test_sigterm_is_handled_only_while_a_command_runs(scene, tmp_path, monkeypatch):
+    """The SIGTERM handler (a clean exit, like Ctrl-C) is in force inside the
+    command and restored afterwards, so an embedding process keeps its own."""
+    import slicer.job
+
+    real = slicer.job.run_slice
+    seen = []
+
+    def spy(*a, **k):
+        seen.append(signal.getsignal(signal.SIGTERM))
+        return real(*a, **k)
+
+    monkeypatch.setattr(slicer.job, "run_slice", spy)
+    before = signal.getsignal(signal.SIGTERM)
+    assert run("slice", scene, "-o", tmp_path / "o", "--pixel-size", "0.1", "-q").exit_code == 0
+    assert len(seen) == 1 and seen[0] not in (signal.SIG_DFL, signal.SIG_IGN, None)
+    assert signal.getsignal(signal.SIGTERM) == before
+    with pytest.raises(SystemExit) as exc:
+        seen[0](signal.SIGTERM, None)
+    assert exc.value.code == 128 + signal.SIGTERM

@@ -9,12 +9,13 @@
   and, when the Debian ``prusa-slicer`` package is installed, ``prusa-slicer
   --load prusaslicer.ini`` accepts our profile (and rejects a corrupted one).
 * zip: ``slices.json`` keys and the images equal the PNG stack's.
-* Atomicity: a killed process leaves nothing at the target (every printer
+* Atomicity: a signalled process leaves nothing at the target (every printer
   format, CTB and Anycubic included).
 """
 from __future__ import annotations
 
 import configparser
+import dataclasses
 import json
 import os
 import re
@@ -23,7 +24,6 @@ import signal
 import struct
 import subprocess
 import sys
-import time
 import zipfile
 from pathlib import Path
 
@@ -34,10 +34,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from formats.goo import HEADER_SIZE, encode_layer
-from formats.printers import PRINTERS
+from formats.goo import HEADER_SIZE, GooWriter, encode_layer
+from formats.printers import PRINTERS, PrintSettings
+from interrupting import interrupt_and_check, start_slice, wait_mid_write
 from slicer import Skeleton
 from slicer.cli import main
+from slicer.grid import SliceGrid
 
 
 
@@ -109,6 +111,12 @@ def goo_decode_rle(data: bytes, n_pixels: int) -> np.ndarray:
     return out
 
 
+#: a GOO layer record's fields (spec V1.2 "layer content"), in file order
+LAYER_FIELDS = ("pause", "pause_z", "z", "exposure", "off_time", "before_lift", "after_lift", "after_retract",
+                "lift", "lift_speed", "lift2", "lift2_speed", "retract", "retract_speed", "retract2",
+                "retract2_speed", "pwm")
+
+
 def read_goo(path):
     """Parse a whole GOO file; returns (header dict, list of (record dict, image))."""
     h, layers = read_goo_lazy(path)
@@ -128,9 +136,11 @@ def read_goo_lazy(path):
     h["x_mirror"], h["y_mirror"] = struct.unpack_from(">??", raw, 195318)
     h["x_size"], h["y_size"], h["z_size"], h["layer_h"], h["exposure"] = struct.unpack_from(">5f", raw, 195320)
     h["delay_mode"] = raw[195340]
+    h["waits"] = struct.unpack_from(">7f", raw, 195341)
     h["bottom_exposure"], h["bottom_layers"] = struct.unpack_from(">fI", raw, 195369)
     h["lift"] = struct.unpack_from(">16f", raw, 195377)
     h["pwm"] = struct.unpack_from(">HH", raw, 195441)
+    h["advance"] = raw[195445]
     h["time"], h["volume"] = struct.unpack_from(">If", raw, 195446)
     assert struct.unpack_from(">I", raw, 195470)[0] == HEADER_SIZE
     h["grey_scale_level"] = raw[195474]
@@ -142,7 +152,7 @@ def _goo_layers(raw, h):
     off = HEADER_SIZE
     for k in range(h["layers"]):
         f = struct.unpack_from(">H15fH", raw, off)
-        rec = {"pause": f[0], "pause_z": f[1], "z": f[2], "exposure": f[3], "lift": f[8], "pwm": f[16]}
+        rec = dict(zip(LAYER_FIELDS, f))
         off += 2 + 60 + 2
         assert raw[off:off + 2] == b"\r\n"
         (n,) = struct.unpack_from(">I", raw, off + 2)
@@ -197,10 +207,13 @@ def test_goo_file_read_back(ell, tmp_path):
     assert h["layer_h"] == pytest.approx(0.4) and h["exposure"] == pytest.approx(2.2)
     assert h["bottom_exposure"] == pytest.approx(28) and h["bottom_layers"] == 3
     assert h["grey_scale_level"] == 1 and h["printer_name"] == "ELEGOO Saturn 3 Ultra"
+    ld, lv, rd, rv = p.lift                                             # the profile's motion
+    assert h["lift"] == pytest.approx((ld, lv, ld, lv, rd, rv, rd, rv) + (0.0,) * 8)
     solid, n = 0, 0
     for k, (rec, img) in enumerate(layers):                            # one layer at a time (59 Mpx each)
         assert rec["z"] == pytest.approx(0.4 * (k + 1))
         assert rec["exposure"] == pytest.approx(28 if k < 3 else 2.2)
+        assert (rec["lift"], rec["lift_speed"], rec["retract"], rec["retract_speed"]) == pytest.approx(p.lift)
         plate = np.asarray(Image.open(z.open(meta["files"][k])))
         assert np.array_equal(img, p.to_native(plate))
         solid += int(np.count_nonzero(img))
@@ -224,6 +237,80 @@ def test_goo_read_by_the_goo_crate(checker, ell, tmp_path):
         assert theirs["pixels"] == img.size
         assert theirs["solid"] == int(np.count_nonzero(img >= 128))
         assert theirs["grey_sum"] == int(img.sum(dtype=np.uint64))
+
+
+def _tiny_goo_printer():
+    """A 30 x 20 px Elegoo-like display whose lift and retract values all differ."""
+    return dataclasses.replace(PRINTERS["elegoo-mars-4-ultra"], name="tiny-goo", label="tiny", pixels=(30, 20),
+                               display=(0.6, 0.5), max_height=40.0, lift=(6.5, 75.0, 4.5, 190.0))
+
+
+def test_goo_header_and_layer_records_hold_the_settings(tmp_path):
+    """Every motion and exposure field lands where the spec puts it (distinct
+    values, so a swap of any two fails), the per-layer records agree with the
+    header, and the header's print time and volume are what the records and
+    images add up to."""
+    p = _tiny_goo_printer()
+    s = PrintSettings(p, 0.05, exposure=2.25, bottom_exposure=31.5, bottom_layers=3)
+    grid = SliceGrid((0.01, 0.4875, 0.025), p.pixel_size, 0.05, 30, 20, 7)
+    rng = np.random.default_rng(3)
+    imgs = [np.where(rng.random((20, 30)) < 0.3, rng.integers(1, 256, (20, 30)), 0).astype(np.uint8)
+            for _ in range(7)]
+    out = tmp_path / "t.goo"
+    with GooWriter(out, grid, {"generator": "skelslice 9.9"}, settings=s) as w:
+        for k, img in enumerate(imgs):
+            w.write_layer(k, img)
+    h, layers = read_goo(out)
+    assert h["layers"] == 7 and (h["x_res"], h["y_res"]) == (30, 20)
+    assert h["exposure"] == 2.25 and h["bottom_exposure"] == 31.5 and h["bottom_layers"] == 3
+    assert h["layer_h"] == pytest.approx(0.05) and h["z_size"] == 40.0
+    assert (h["x_size"], h["y_size"]) == pytest.approx((0.6, 0.5))
+    # bottom lift d, v; lift d, v; bottom retract d, v; retract d, v; then the unused second stage
+    assert h["lift"] == (6.5, 75.0, 6.5, 75.0, 4.5, 190.0, 4.5, 190.0) + (0.0,) * 8
+    assert h["pwm"] == (255, 255) and h["delay_mode"] == 1 and h["waits"] == (0.0,) * 7
+    assert h["transition"] == 0 and h["grey_scale_level"] == 1 and h["aa"] == 1
+    seconds = 0.0
+    for k, ((rec, img), plate) in enumerate(zip(layers, imgs)):
+        assert np.array_equal(img, p.to_native(plate))
+        exp = 31.5 if k < 3 else 2.25
+        assert rec == {"pause": 0, "pause_z": 40.0, "z": pytest.approx(0.05 * (k + 1)), "exposure": exp,
+                       "off_time": 0.0, "before_lift": 0.0, "after_lift": 0.0, "after_retract": 0.0,
+                       "lift": 6.5, "lift_speed": 75.0, "lift2": 0.0, "lift2_speed": 0.0,
+                       "retract": 4.5, "retract_speed": 190.0, "retract2": 0.0, "retract2_speed": 0.0,
+                       "pwm": 255}
+        # what a reader adds up: exposure plus lift and retract moves at mm/min
+        seconds += rec["exposure"] + 60 * (rec["lift"] / rec["lift_speed"] + rec["retract"] / rec["retract_speed"])
+    assert h["time"] == round(seconds)
+    grey = sum(float(i.sum()) / 255 for i in imgs)
+    assert h["volume"] == pytest.approx(grey * 0.02 * 0.025 * 0.05, rel=1e-6)
+
+
+def test_goo_settings_read_back_by_the_goo_crate(checker, tmp_path):
+    """The goo crate's header and layer structs hold the same motion, exposure,
+    time and volume values as our spec reader."""
+    p = _tiny_goo_printer()
+    s = PrintSettings(p, 0.05, exposure=2.25, bottom_exposure=31.5, bottom_layers=3)
+    grid = SliceGrid((0.01, 0.4875, 0.025), p.pixel_size, 0.05, 30, 20, 5)
+    out = tmp_path / "t.goo"
+    with GooWriter(out, grid, {"generator": "skelslice 9.9"}, settings=s) as w:
+        for k in range(5):
+            w.write_layer(k, np.full((20, 30), 40 * k, np.uint8))
+    rep = subprocess.run([str(checker), "goo", str(out)], capture_output=True, text=True, timeout=300)
+    assert rep.returncode == 0, rep.stdout + rep.stderr
+    doc = json.loads(rep.stdout)
+    h, layers = read_goo(out)
+    assert doc["layers_ok"] and doc["offset_ok"] and doc["size_ok"]
+    assert (doc["exposure_time"], doc["bottom_exposure_time"], doc["bottom_layers"]) == (2.25, 31.5, 3)
+    assert [doc[k] for k in ("bottom_lift_distance", "bottom_lift_speed", "lift_distance", "lift_speed",
+                             "bottom_retract_distance", "bottom_retract_speed", "retract_distance",
+                             "retract_speed")] == list(h["lift"][:8]) == [6.5, 75.0, 6.5, 75.0, 4.5, 190.0, 4.5, 190.0]
+    assert doc["printing_time"] == h["time"] > 0
+    assert doc["total_volume"] == pytest.approx(h["volume"], rel=1e-7)
+    assert (doc["bottom_light_pwm"], doc["light_pwm"]) == h["pwm"]
+    for (rec, _), theirs in zip(layers, doc["layers"]):
+        assert theirs["exposure"] == rec["exposure"] and theirs["position_z"] == pytest.approx(rec["z"])
+        assert (theirs["lift_distance"], theirs["lift_speed"], theirs["retract_distance"],
+                theirs["retract_speed"]) == (rec["lift"], rec["lift_speed"], rec["retract"], rec["retract_speed"])
 
 
 # ---------------------------------------------------------------- SL1 / SL1S reader rules
@@ -299,6 +386,66 @@ def test_sl1s_layers_round_trip_to_the_plate_images(jobs):
     ml = sum(float(np.count_nonzero(i)) for i in plate) * 0.05 * 0.05 * 0.2 / 1000
     assert float(cfg["usedMaterial"]) == pytest.approx(ml, abs=5e-7)            # printed as %.6f ml
     assert int(cfg["numSlow"]) == 0                                     # a tiny model never fills 50 %
+
+
+@pytest.fixture(scope="module")
+def exposure_jobs(ell, tmp_path_factory):
+    """SL1S jobs with distinct exposure options: the base, +1 s normal
+    exposure, +10 s bottom exposure; and the base as a zip (layer count)."""
+    d = tmp_path_factory.mktemp("exposure")
+    base = {"--exposure": 3.5, "--bottom-exposure": 27.0, "--bottom-layers": 4}
+    outs = {}
+    for name, change in [("base.sl1s", {}), ("exp.sl1s", {"--exposure": 4.5}),
+                         ("bottom.sl1s", {"--bottom-exposure": 37.0}), ("base.zip", {})]:
+        opts = {**base, **change}
+        out = d / name
+        args = [a for kv in opts.items() for a in kv] + (["--printer", "prusa-sl1s"] if name.endswith(".zip") else [])
+        r = run("slice", ell, "-o", out, "--layer-height", "0.05", "-q", *args)
+        assert r.exit_code == 0, r.output
+        outs[name] = out
+    return outs
+
+
+def _sl1(path):
+    with zipfile.ZipFile(path) as z:
+        cfg = _ini(z.read("config.ini").decode())
+        prof = _ini(z.read("prusaslicer.ini").decode())
+        layers = [np.asarray(Image.open(z.open(x))) for x in sorted(z.namelist())
+                  if re.fullmatch(r"[A-Za-z0-9_-]+\d{5}\.png", x)]
+    return cfg, prof, layers
+
+
+def test_sl1_config_records_the_exposure_options(exposure_jobs):
+    """--exposure, --bottom-exposure and --bottom-layers land in the firmware's
+    (config.ini) and PrusaSlicer's (prusaslicer.ini) fields; the layer count,
+    layer height and resin volume are those of the images."""
+    cfg, prof, layers = _sl1(exposure_jobs["base.sl1s"])
+    assert (float(cfg["expTime"]), float(cfg["expTimeFirst"]), int(cfg["numFade"])) == (3.5, 27.0, 4)
+    assert (float(prof["exposure_time"]), float(prof["initial_exposure_time"]), int(prof["faded_layers"])) == \
+        (3.5, 27.0, 4)
+    with zipfile.ZipFile(exposure_jobs["base.zip"]) as z:
+        n = json.loads(z.read("slices.json"))["layers"]
+    assert len(layers) == n == int(cfg["numFast"]) + int(cfg["numSlow"]) > 8
+    assert float(cfg["layerHeight"]) == float(prof["layer_height"]) == 0.05
+    ml = sum(float(i.sum()) / 255 for i in layers) * 0.05 * 0.05 * 0.05 / 1000
+    assert float(cfg["usedMaterial"]) == pytest.approx(ml, abs=5e-7)
+    assert ml > 1e-3
+
+
+def test_sl1_print_time_follows_the_exposures(exposure_jobs):
+    """printTime (s) grows by 1 s per normal layer when the normal exposure
+    grows by 1 s (by at least every layer after the faded ones, at most all
+    of them), and by at most 10 s per faded layer when the bottom exposure
+    grows by 10 s: a print time that ignored an exposure, or swapped the two,
+    fails. It also covers at least the exposure of every layer."""
+    cfg, _, layers = _sl1(exposure_jobs["base.sl1s"])
+    n, fade = len(layers), int(cfg["numFade"])
+    t = float(cfg["printTime"])
+    t_exp = float(_sl1(exposure_jobs["exp.sl1s"])[0]["printTime"])
+    t_bottom = float(_sl1(exposure_jobs["bottom.sl1s"])[0]["printTime"])
+    assert (n - fade) * 1.0 - 1e-5 <= t_exp - t <= n * 1.0 + 1e-5
+    assert 0.0 < t_bottom - t <= fade * 10.0 + 1e-5
+    assert t >= (n - fade) * 3.5 + fade * 3.5
 
 
 @pytest.mark.parametrize("name", ["aa.sl1s", "az.sl1s"])
@@ -447,37 +594,28 @@ def test_python_m_slicer_writes_sl1s(ell, tmp_path):
         assert z.testzip() is None and "config.ini" in z.namelist()
 
 
-#: printer of each format in the kill test, and the temporary-file size that means layers are being written
+#: printer of each format in the signal test, and the temporary-file size that means layers are being written
 #: (past the placeholder header and layer table the format writes first)
 KILL_JOBS = {"sl1s": ("prusa-sl1s", 50_000), "goo": ("elegoo-saturn-3-ultra", HEADER_SIZE + 500),
              "zip": ("prusa-sl1s", 50_000), "nanodlp": ("prusa-sl1s", 50_000),
              "ctb": ("elegoo-saturn", 248 + 13 + 36 * 3000 + 20_000), "pwmx": ("anycubic-photon-mono-x", 250_000),
              "pws": ("anycubic-photon-s", 250_000)}
+SIGNAL_CASES = [(ext, signal.SIGKILL) for ext in sorted(KILL_JOBS)] + \
+    [(ext, sig) for ext in ("goo", "ctb", "pwmx") for sig in (signal.SIGINT, signal.SIGTERM)]
 
 
-@pytest.mark.parametrize("ext", sorted(KILL_JOBS))
-def test_killed_process_leaves_no_output(tmp_path, ext):
-    """SIGKILL while layers are written: nothing appears at the target."""
+@pytest.mark.parametrize("ext, sig", SIGNAL_CASES, ids=[f"{e}-{s.name}" for e, s in SIGNAL_CASES])
+def test_signal_mid_write_leaves_no_output(tmp_path, ext, sig):
+    """A signal while the printer file's layers are written: nothing appears
+    at the target (SIGINT/SIGTERM also remove the temporary; see
+    interrupting.interrupt_and_check). The PNG stack is interrupted in
+    test_cli_scale."""
     scene = tmp_path / "tall.json"
     n = 30                                                  # a 60 mm post of 2 mm segments: 3000 layers
     Skeleton([[0, 0, 2.0 * i] for i in range(n + 1)], [[i, i + 1] for i in range(n)], [[0.5, 0.5]] * n).save(scene)
     out = tmp_path / f"out.{ext}"
     printer, started = KILL_JOBS[ext]
-    proc = subprocess.Popen([sys.executable, "-m", "slicer", "slice", str(scene), "-o", str(out), "-q",
-                             "--layer-height", "0.02", "--printer", printer],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    deadline = time.time() + 300
-    tmp = None
-    while time.time() < deadline and proc.poll() is None:
-        tmps = [p for p in tmp_path.iterdir() if p.name.startswith(f".{out.name}.tmp-")]
-        if tmps and tmps[0].stat().st_size > started:
-            tmp = tmps[0]
-            break
-        time.sleep(0.05)
-    if proc.poll() is not None:
-        pytest.skip("the job finished before it could be interrupted")
-    assert tmp is not None, "no temporary file appeared"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert not out.exists()
+    proc = start_slice(scene, out, "-q", "--layer-height", "0.02", "--printer", printer)
+    wait_mid_write(proc, out, size=started)
+    interrupt_and_check(proc, out, sig)
     assert [p.name for p in tmp_path.iterdir() if not p.name.startswith(".")] == ["tall.json"]

@@ -265,6 +265,85 @@ def test_printer_job_stores_the_native_display(jobs):
         assert entry == {k: (pytest.approx(v, rel=1e-12) if isinstance(v, float) else v) for k, v in ref.items()}
 
 
+# ---------------------------------------------------------------- ImageMirror as a reader applies it
+def reader_view(docs, layer):
+    """A stored layer as UVtools presents it: its NanoDLP reader maps
+    ``ImageMirror != 0`` to ``DisplayMirror = FlipDirection.Horizontally``
+    (NanoDLPFile.cs), layer images are kept as stored (the LCD's own layout)
+    and the layer preview flips them left-right back to the plate seen from
+    above (LayerPreview.AutoFlipLayerIfMirrored). A file whose PNGs are
+    already mirrored *and* that says ImageMirror = 1 is therefore consistent;
+    mirroring the PNGs once more, or dropping the flag, shows a mirrored part."""
+    return layer[:, ::-1] if docs["options.json"]["ImageMirror"] else layer
+
+
+def _footprint_centre(images, pitch, height_mm):
+    """Centre (X, Y) mm of the bounding box of every lit pixel, columns toward
+    +X from X = 0 and rows toward -Y from Y = height_mm (the plate seen from above)."""
+    rows = np.flatnonzero(np.any([i.any(axis=1) for i in images], axis=0))
+    cols = np.flatnonzero(np.any([i.any(axis=0) for i in images], axis=0))
+    x = 0.5 * (cols[0] + cols[-1] + 1) * pitch[0]
+    y = height_mm - 0.5 * (rows[0] + rows[-1] + 1) * pitch[1]
+    return x, y
+
+
+@pytest.fixture(scope="module")
+def landscape_jobs(ell, tmp_path_factory):
+    """The chiral model off-centre on a landscape, X-mirrored display
+    (Anycubic Photon Mono X, 3840 x 2400 px), as NanoDLP and as a PNG stack
+    of plate images."""
+    d = tmp_path_factory.mktemp("mirror")
+    outs = {}
+    for name, fmt in (("m.nanodlp", "nanodlp"), ("stack", "png")):
+        out = d / name
+        r = run("slice", ell, "-o", out, "-q", "--printer", "anycubic-photon-mono-x", "--at", "40", "30",
+                "--layer-height", "0.4", "--format", fmt)
+        assert r.exit_code == 0, r.output
+        outs[name] = out
+    return outs
+
+
+def test_mirrored_display_is_not_mirrored_twice(landscape_jobs):
+    """Read as UVtools reads it, every NanoDLP layer is the PNG stack's plate
+    image, and the part's footprint is centred where --at put it (X 40, Y 30
+    mm on a 192 x 120 mm plate; mirrored, it would be at X 152)."""
+    p = PRINTERS["anycubic-photon-mono-x"]
+    assert p.orientation == "landscape" and p.mirror_x
+    docs, layers, _ = read_nanodlp(landscape_jobs["m.nanodlp"])
+    assert docs["options.json"]["ImageMirror"] == 1
+    stack = landscape_jobs["stack"]
+    meta = json.loads((stack / "slices.json").read_text())
+    plates = [np.asarray(Image.open(stack / f)) for f in meta["files"]]
+    assert meta["pixel_size"] == pytest.approx(p.pixel_size) and len(layers) == len(plates) > 2
+    assert meta["origin"][:2] == pytest.approx([0.5 * p.pixel_size[0], p.display[1] - 0.5 * p.pixel_size[1]])
+    for img, plate in zip(layers, plates):
+        assert img.shape == plate.shape == (2400, 3840)
+        assert np.array_equal(reader_view(docs, img), plate)
+    for images in ([reader_view(docs, i) for i in layers], plates):
+        x, y = _footprint_centre(images, p.pixel_size, p.display[1])
+        assert abs(x - 40) <= 0.5 * p.pixel_size[0] + 1e-9 and abs(y - 30) <= 0.5 * p.pixel_size[1] + 1e-9, (x, y)
+
+
+def test_portrait_display_shows_a_rotation_not_a_mirror_image(jobs):
+    """SL1S (portrait, X-mirrored): the reader's view of each layer is the
+    plate image turned by a multiple of 90 degrees (a portrait display swaps
+    the axes), never its mirror image."""
+    docs, layers, _ = read_nanodlp(jobs["s.nanodlp"])
+    with zipfile.ZipFile(jobs["s.zip"]) as z:
+        meta = json.loads(z.read("slices.json"))
+        plates = [np.asarray(Image.open(z.open(f))) for f in meta["files"]]
+    assert docs["options.json"]["ImageMirror"] == 1
+    turns = []
+    for img, plate in zip(layers, plates):
+        if not plate.any():
+            continue
+        view = reader_view(docs, img)
+        assert not any(np.array_equal(view, np.rot90(plate[:, ::-1], k)) for k in range(4)), \
+            "the reader sees the part mirrored"
+        turns.append([k for k in range(4) if np.array_equal(view, np.rot90(plate, k))])
+    assert len(turns) > 2 and all(t == turns[0] and len(t) == 1 for t in turns), turns
+
+
 # ---------------------------------------------------------------- the msla_format crate
 def _check(checker, path):
     r = subprocess.run([str(checker), "nanodlp", str(path)], capture_output=True, text=True, timeout=300)

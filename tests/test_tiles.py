@@ -81,8 +81,6 @@ def _fake_tile(rng, tw, th, layers, spans):
 def test_merge_tiles_matches_a_slow_reference(width, height, tile, seed, spans):
     """Random runs on a random tiling: the merged arrays are the runs of every
     pixel in image order, each pixel's own order kept, span arrays too."""
-    if spans and not any(f.name == "span_pix" for f in dataclasses.fields(SliceResult)):
-        pytest.skip("SliceResult has no span arrays")
     rng = np.random.default_rng(seed)
     K = 6
     grid = make_grid(np.array([[0, 0, 0], [1, 1, 1.0]]), 1.0,
@@ -113,8 +111,6 @@ def test_merge_tiles_matches_a_slow_reference(width, height, tile, seed, spans):
 def test_merge_refuses_fields_present_in_some_tiles_only():
     g = make_grid(np.zeros((2, 3)), 1.0, bounds=(0, 0, 0, 2, 1, 2))
     a = {"pix": np.zeros(0, np.int32), "k0": np.zeros(0, np.int32), "k1": np.zeros(0, np.int32)}
-    if not any(f.name == "span_pix" for f in dataclasses.fields(SliceResult)):
-        pytest.skip("SliceResult has no span arrays")
     b = dict(a, span_pix=np.zeros(0, np.int32), span_t0=np.zeros(0), span_t1=np.zeros(0))
     a.update(span_pix=None, span_t0=None, span_t1=None)
     with pytest.raises(ValueError, match="span_pix"):
@@ -224,8 +220,6 @@ def test_streamed_explicit_bounds_equal_untiled(lattice):
 
 
 def test_spans_and_coverage_survive_tiling(lattice):
-    if not hasattr(SliceResult, "iter_coverage"):
-        pytest.skip("no spans in this version")
     bounds = (-0.5, -0.5, 0.3, 5.5, 3.7, 2.9)
     ref = slice_skeleton(lattice, 0.1, bounds=bounds, spans=True)
     one = slice_planned(lattice, 0.1, bounds=bounds, spans=True, tile=16, progress=False)

@@ -19,6 +19,7 @@ from PIL import Image
 from slicer import Skeleton
 from slicer.grid import make_grid
 from slicer.slicing import METHODS, slice_skeleton, trace
+from test_ray_unimodal import Ray, check_ray
 
 TOL = 1e-9
 
@@ -70,6 +71,12 @@ def _node26():
 
 
 CASES["node_26_struts"] = (_node26(), 0.1, 0.1)
+# a strut whose support cone has a vertical generator (horizontal extent = sigma (r1 - r0),
+# A = 3e-17 for slicing rays) blended with a horizontal one: the support entry of its
+# rays used to come up to 0.1 of the field late, 10 voxels misclassified
+_H = 0.4 / np.sqrt(2)
+CASES["critical_taper_blend"] = (_scene([[0, 0, 0], [_H, _H, 1.0], [-1, 0.6, 0.3], [2, 0.6, 0.3]], [[0, 1], [2, 3]],
+                                        [[0.1, 0.3], [0.2, 0.2]]), 0.04, 0.04)
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))
@@ -139,59 +146,26 @@ def test_explicit_bounds_layout():
     assert g.origin == (-0.875, 0.875, 0.25)
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=150, deadline=None, derandomize=True)
 @given(
     st.lists(st.floats(-2, 2), min_size=6, max_size=6),
     st.floats(0.05, 1.0), st.floats(0.05, 1.0),
     st.floats(-1.5, 1.5), st.floats(-1.5, 1.5),
-    st.floats(0.0, 1.0), st.floats(0.0, 1.0),
+    st.lists(st.tuples(st.floats(0.0, 1.0), st.floats(0.001, 1.0)), min_size=1, max_size=3),
 )
-def test_inclusion_and_lipschitz_bounds_are_sound(ends, r0, r1, ox, oy, u, v):
-    """For a random segment, vertical ray and piece [ta, tb] inside the support:
-    sampled true field values stay within the per-primitive inclusion, and the
-    sampled slope within the directional Lipschitz bound."""
-    from slicer._kernels.field import SCRATCH, segment_eval
-    from slicer._kernels.raysupport import H_TIN, H_TOUT, NHIT, kprime_max, lipschitz, ray_support
-    from slicer.field import segment_table
-
+def test_slicing_ray_bounds_are_sound(ends, r0, r1, ox, oy, pieces):
+    """A random segment and a slicing ray (vertical, ``t = z``) through the
+    tracer's own kernels (ray_support, eval_along, piece_bounds, lipschitz):
+    a miss is a miss, nothing lies outside [t_in, t_out], the field is
+    unimodal, below H_FMAX, inside both the unimodal and the strict piece
+    bounds, monotone where called monotone, and its slope within the
+    Lipschitz bound (test_ray_unimodal.check_ray; any direction and the
+    stiff tapers are in that module)."""
     a, b = np.array(ends[:3]), np.array(ends[3:])
     if np.linalg.norm(b - a) < 1e-3:
         return
-    skel = Skeleton([a, b], [[0, 1]], [[r0, r1]])
-    seg = segment_table(skel)
-    n, sigma, norm = skel.degree, skel.sigma, skel.normalisation
-    recs = np.empty((1, NHIT))
-    rec = recs[0]
-    if not ray_support(seg, 0, ox, oy, 0.0, 0.0, 0.0, 1.0, n, sigma, norm, kprime_max(n, sigma, norm), recs, 0):
-        # a miss must really be a miss
-        zs = np.linspace(-4, 4, 801)
-        f = skel.field(np.stack([np.full_like(zs, ox), np.full_like(zs, oy), zs], 1))
-        assert f.max() == 0.0
-        return
-    tin, tout = rec[H_TIN], rec[H_TOUT]
-    # nothing of the field lies outside [t_in, t_out]
-    zs_out = np.concatenate([np.linspace(tin - 3, tin, 200), np.linspace(tout, tout + 3, 200)])
-    assert skel.field(np.stack([np.full_like(zs_out, ox), np.full_like(zs_out, oy), zs_out], 1)).max() == 0.0
-    ta = tin + u * (tout - tin)
-    tb = ta + v * (tout - ta)
-    if tb <= ta:
-        return
-    zs = np.linspace(ta, tb, 401)
-    P = np.stack([np.full_like(zs, ox), np.full_like(zs, oy), zs], 1)
-    f = skel.field(P)
-    dfdz = skel.gradient(P)[:, 2]
-    K = lipschitz(recs, 0, ta, tb)
-    assert np.all(np.abs(dfdz) <= K * (1 + 1e-9) + 1e-12)
-    f0, f1 = f[0], f[-1]
-    d0, d1 = dfdz[0], dfdz[-1]
-    hi = 0.5 * (f0 + f1 + K * (tb - ta))
-    assert f.max() <= hi * (1 + 1e-9) + 1e-12
-    if d1 > 0 and not d0 < 0:       # increasing piece (unimodality)
-        assert f.max() <= f1 * (1 + 1e-9) + 1e-12 and f.min() >= f0 * (1 - 1e-9) - 1e-12
-    elif d0 < 0 and not d1 > 0:     # decreasing piece
-        assert f.max() <= f0 * (1 + 1e-9) + 1e-12 and f.min() >= f1 * (1 - 1e-9) - 1e-12
-    else:
-        assert f.min() >= min(f0, f1) * (1 - 1e-9) - 1e-12
+    ray = Ray(Skeleton([a, b], [[0, 1]], [[r0, r1]]), (ox, oy, 0.0), (0.0, 0.0, 1.0))
+    check_ray(ray, pieces)
 
 
 def test_one_and_two_threads_give_identical_bytes(tmp_path):

@@ -166,8 +166,17 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, hrec, row)
                         if c == 3:
                             continue
                         disc = 0.0
+                    # stable roots q / a2 and c2 / q: with A ~ 0 (the ray along a
+                    # generator of the support cone) the textbook (-b2 + sq) / a2
+                    # cancels to 0 and the real stationary point was lost
                     sq = math.sqrt(disc)
-                    s = (-b2 - sq) / a2 if c == 2 else (-b2 + sq) / a2
+                    qq = -(b2 + sq) if b2 >= 0.0 else -(b2 - sq)
+                    if qq == 0.0:
+                        if c == 3:
+                            continue
+                        s = 0.0
+                    else:
+                        s = qq / a2 if c == 2 else c2 / qq
                 if not (s > s0 and s < s1):
                     continue
             q = -((A * s + 2.0 * B) * s + C)

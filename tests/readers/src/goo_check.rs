@@ -6,8 +6,9 @@
 //! checksum, and that the decoded runs cover exactly x_res x y_res pixels.
 //!
 //! Output: header fields (`version`, `x_resolution`, `y_resolution`,
-//! `layer_count`, sizes, exposure settings, `grey_scale_level`, ...) and
-//! `layers`: per layer `position_z`, `exposure`, `checksum_ok`, `pixels`
+//! `layer_count`, sizes, exposure, lift and retract settings, `printing_time`,
+//! `total_volume`, `grey_scale_level`, ...) and `layers`: per layer
+//! `position_z`, `exposure`, lift and retract distances and speeds, `checksum_ok`, `pixels`
 //! (sum of run lengths), `lit` (pixels > 0), `solid` (pixels >= 128),
 //! `grey_sum` (sum of the pixel values), `fnv1a64` (FNV-1a 64 of the decoded
 //! row-major 8-bit image, as 16 hex digits) and `ok` (checksum matches and
@@ -75,6 +76,10 @@ pub fn report(data: &[u8]) -> Result<String, String> {
             Obj::new()
                 .num("position_z", layer.layer_position_z as f64)
                 .num("exposure", layer.layer_exposure_time as f64)
+                .num("lift_distance", layer.lift_distance as f64)
+                .num("lift_speed", layer.lift_speed as f64)
+                .num("retract_distance", layer.retract_distance as f64)
+                .num("retract_speed", layer.retract_speed as f64)
                 .int("light_pwm", layer.light_pwm as i64)
                 .boolean("checksum_ok", checksum_ok)
                 .int("pixels", pixels as i64)
@@ -104,6 +109,18 @@ pub fn report(data: &[u8]) -> Result<String, String> {
         .num("exposure_time", h.exposure_time as f64)
         .num("bottom_exposure_time", h.bottom_exposure_time as f64)
         .int("bottom_layers", h.bottom_layers as i64)
+        .num("bottom_lift_distance", h.bottom_lift_distance as f64)
+        .num("bottom_lift_speed", h.bottom_lift_speed as f64)
+        .num("lift_distance", h.lift_distance as f64)
+        .num("lift_speed", h.lift_speed as f64)
+        .num("bottom_retract_distance", h.bottom_retract_distance as f64)
+        .num("bottom_retract_speed", h.bottom_retract_speed as f64)
+        .num("retract_distance", h.retract_distance as f64)
+        .num("retract_speed", h.retract_speed as f64)
+        .int("bottom_light_pwm", h.bottom_light_pwm as i64)
+        .int("light_pwm", h.light_pwm as i64)
+        .int("printing_time", h.printing_time as i64)
+        .num("total_volume", h.total_volume as f64)
         .int("transition_layers", h.transition_layers as i64)
         .int("anti_aliasing_level", h.anti_aliasing_level as i64)
         .boolean("grey_scale_level", h.grey_scale_level)
