@@ -322,7 +322,10 @@ def _open_goo(p: Path) -> ReadStack:
             status, where = decode_goo(payload, img)
             if status != OK:
                 raise ReadError(f"{p}: layer {k}: bad run-length data (code {status} at {where})")
-            off += 5 + size + 2
+            end = off + 5 + size - 1                        # after the checksum
+            if raw[end:end + 2] != b"\r\n":
+                raise ReadError(f"{p}: layer {k}: no delimiter after the layer data at byte {end}")
+            off = end + 2
             yield prn.from_native(img.reshape(yres, xres))
 
     return ReadStack(p, "goo", _plate_grid(prn, h, n), "plate", prn, s, {"printer_name": model}, _iter=layers)

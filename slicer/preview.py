@@ -40,7 +40,7 @@ from PIL import Image
 
 from .atomic import write_bytes
 from .errors import ReadError
-from .printability.report import CheckReport, _mm
+from .printability.report import CheckReport, mm_text
 from .printability.stream import SOLID, LayerStack
 
 #: findings written into the page (the rest are counted)
@@ -200,7 +200,7 @@ def _findings(report: CheckReport, st: LayerStack) -> list[dict]:
         c, r = _px(st, i.x, i.y)
         out.append({"kind": "island", "layer": i.layer, "col": c, "row": r, "box": list(i.bbox),
                     "label": f"island {i.area:.3g} mm²",
-                    "text": f"layer {i.layer}: {i.area:.4g} mm² at x {_mm(i.x)} y {_mm(i.y)} mm, held by nothing below"})
+                    "text": f"layer {i.layer}: {i.area:.4g} mm² at x {mm_text(i.x)} y {mm_text(i.y)} mm, held by nothing below"})
     for t in report.thin_segments or []:
         c, r = _px(st, t.x, t.y)
         out.append({"kind": "thin", "layer": t.layer, "col": c, "row": r, "radius": t.radius_width / px,

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from formats.readback import kind_of
+from formats.readback import kind_of, open_stack
 
 from ..atomic import check_destination
 from ..config import config_option
@@ -63,6 +63,8 @@ def checked_stack(scene, radius, options: dict, progress=None):
     result : SliceResult or None
     resolved : ResolvedJob or None
     """
+    if Path(scene).suffix.lower() in (".cli", ".svg"):
+        open_stack(scene)                               # refused by name: contours, not layer images
     if is_output(scene):
         given = [n for n in _SLICE_ONLY if options.get(n) not in (None, ())] + (["radius"] if radius else [])
         if given:
