@@ -200,7 +200,8 @@ def _findings(report: CheckReport, st: LayerStack) -> list[dict]:
         c, r = _px(st, i.x, i.y)
         out.append({"kind": "island", "layer": i.layer, "col": c, "row": r, "box": list(i.bbox),
                     "label": f"island {i.area:.3g} mm²",
-                    "text": f"layer {i.layer}: {i.area:.4g} mm² at x {mm_text(i.x)} y {mm_text(i.y)} mm, held by nothing below"})
+                    "text": f"layer {i.layer}: {i.area:.4g} mm² at x {mm_text(i.x)} y {mm_text(i.y)} mm, "
+                            "held by nothing below"})
     for t in report.thin_segments or []:
         c, r = _px(st, t.x, t.y)
         out.append({"kind": "thin", "layer": t.layer, "col": c, "row": r, "radius": t.radius_width / px,

@@ -95,6 +95,7 @@ def layer_pixels(driver):
     """The layer canvas as a (height, width, 4) uint8 array (``getImageData``)."""
     w, h, data = driver.execute_script(
         "const c = window.skelslice.layerCanvas, d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;"
-        "let s = ''; for (let i = 0; i < d.length; i += 8192) s += String.fromCharCode.apply(null, d.subarray(i, i + 8192));"
+        "let s = ''; for (let i = 0; i < d.length; i += 8192)"
+        "  s += String.fromCharCode.apply(null, d.subarray(i, i + 8192));"
         "return [c.width, c.height, btoa(s)];")
     return np.frombuffer(base64.b64decode(data), np.uint8).reshape(h, w, 4)

@@ -70,7 +70,8 @@ def assert_shows(driver, stack, k):
     px = browser.layer_pixels(driver)
     want = png_layer(stack, k)
     assert px.shape[:2] == want.shape
-    assert np.array_equal(px[..., 0], want), f"layer {k}: canvas differs from the PNG in {np.sum(px[..., 0] != want)} px"
+    bad = int(np.sum(px[..., 0] != want))
+    assert bad == 0, f"layer {k}: the canvas differs from the PNG in {bad} pixels"
     assert np.array_equal(px[..., 1], want) and np.array_equal(px[..., 2], want) and np.all(px[..., 3] == 255)
 
 

@@ -15,6 +15,7 @@ import numpy as np
 from formats.printers import PrintSettings
 
 from ..grid import SliceGrid
+from .stream import rounded
 
 #: layer-to-layer jumps listed in a report
 TOP_JUMPS = 5
@@ -46,25 +47,25 @@ class AreaStats:
         (the largest increases, ``layer``, ``from``, ``to``, ``jump``, mm²),
         ``max_jump`` and, with ``max_jump``, ``over`` (the jumps above it)."""
         a = np.asarray(self.area, dtype=np.float64)
-        out: dict = {"per_layer": [round(v, 6) for v in a.tolist()], "largest": None, "jumps": [],
+        out: dict = {"per_layer": [rounded(v) for v in a.tolist()], "largest": None, "jumps": [],
                      "max_jump": 0.0}
         if a.size == 0:
             return out
         k = int(np.argmax(a))
-        out["largest"] = {"layer": k, "area": float(a[k])}
+        out["largest"] = {"layer": k, "area": rounded(a[k])}
         d = np.diff(a, prepend=0.0)
         d[0] = 0.0                                     # the first layer's area is not a jump
         order = np.argsort(-d, kind="stable")[:TOP_JUMPS]
         jumps = [_jump(a, int(q)) for q in order if d[q] > 0]
         out["jumps"] = jumps
-        out["max_jump"] = float(d.max())
+        out["max_jump"] = rounded(d.max())
         if max_jump is not None:
             out["over"] = [_jump(a, int(q)) for q in np.nonzero(d > max_jump)[0]]
         return out
 
 
 def _jump(a: np.ndarray, q: int) -> dict:
-    return {"layer": q, "from": float(a[q - 1]), "to": float(a[q]), "jump": float(a[q] - a[q - 1])}
+    return {"layer": q, "from": rounded(a[q - 1]), "to": rounded(a[q]), "jump": rounded(a[q] - a[q - 1])}
 
 
 def estimate(grid: SliceGrid, grey: list, settings: PrintSettings | None) -> dict:
@@ -96,7 +97,7 @@ def estimate(grid: SliceGrid, grey: list, settings: PrintSettings | None) -> dic
     seconds = bottom * s.bottom_exposure + (n - bottom) * s.exposure + n * overhead
     px, py = grid.pixel_size
     ml = float(g.sum()) * px * py * grid.layer_height / 1000.0
-    return {"layers": n, "print_seconds": float(seconds), "resin_ml": ml, "exposure": s.exposure,
+    return {"layers": n, "print_seconds": rounded(seconds), "resin_ml": rounded(ml), "exposure": s.exposure,
             "bottom_exposure": s.bottom_exposure, "bottom_layers": s.bottom_layers, "layer_overhead": overhead,
             "assumed": settings is None or s.printer is None}
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from .._kernels.labels import held_regions, label_layer, region_stats
 from ..grid import SliceGrid
+from .stream import rounded
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,8 @@ class Island:
     bbox: tuple[int, int, int, int]
 
     def to_dict(self) -> dict:
-        return {"layer": self.layer, "z": self.z, "x": self.x, "y": self.y, "area": self.area,
+        return {"layer": self.layer, "z": rounded(self.z), "x": rounded(self.x), "y": rounded(self.y),
+                "area": rounded(self.area),
                 "pixels": self.pixels, "bbox": list(self.bbox)}
 
 

@@ -151,14 +151,14 @@ class CheckReport:
             lines.append(f"{src}: not printable as is: " + ", ".join(f"{n} {k}" for k, n in b.items()))
         elif not self.clean:
             lines.append(f"{src}: nothing blocks printing; notes:")
-        lines += _listed([f"island   layer {i.layer} (z {mm_text(i.z)} mm) at x {mm_text(i.x)} y {mm_text(i.y)} mm ({unit}), "
-                          f"{i.area:.4g} mm², held by nothing below" for i in self.islands], listed, "islands")
+        lines += _listed([f"island   layer {i.layer} (z {mm_text(i.z)} mm) at x {mm_text(i.x)} y {mm_text(i.y)} mm "
+                          f"({unit}), {i.area:.4g} mm², held by nothing below" for i in self.islands], listed, "islands")
         lines += _listed([f"thin     segment {t.segment}: printed width {t.width:.4g} mm < {t.threshold:.4g} mm "
-                          f"(2 x radius {t.radius_width:.4g} mm) at x {mm_text(t.x)} y {mm_text(t.y)} z {mm_text(t.z)} mm"
-                          for t in self.thin_segments or []], listed, "thin segments")
+                          f"(2 x radius {t.radius_width:.4g} mm) at x {mm_text(t.x)} y {mm_text(t.y)} "
+                          f"z {mm_text(t.z)} mm" for t in self.thin_segments or []], listed, "thin segments")
         lines += _listed([f"trap     {'closed cavity' if t.kind == 'closed' else 'suction cup (open to the plate only)'}"
-                          f", {t.volume:.4g} mm³ at x {mm_text(t.x)} y {mm_text(t.y)} z {mm_text(t.z)} mm, layers {t.layers[0]}-"
-                          f"{t.layers[1]}" for t in self.traps], listed, "traps")
+                          f", {t.volume:.4g} mm³ at x {mm_text(t.x)} y {mm_text(t.y)} z {mm_text(t.z)} mm, "
+                          f"layers {t.layers[0]}-{t.layers[1]}" for t in self.traps], listed, "traps")
         lines += _listed([f"jump     layer {j['layer']}: area {j['from']:.4g} -> {j['to']:.4g} mm² "
                           f"(+{j['jump']:.4g} mm²)" for j in self.areas.get("over", [])], listed, "jumps")
         if lines:

@@ -26,6 +26,11 @@ SOLID = 128
 CROP_PIXELS = 4_000_000
 
 
+def rounded(v: float) -> float:
+    """A length, area or volume for reports: rounded to 1e-9 (far below a voxel), no -0."""
+    return round(float(v), 9) + 0.0
+
+
 @dataclass
 class LayerStack:
     """Output layers of a job, one (grid.height, grid.width) uint8 image at a time.
@@ -165,4 +170,4 @@ def _window_layers(result, pl, settings: PrintSettings, box) -> Iterator[np.ndar
         yield out
 
 
-__all__ = ["LayerStack", "model_layers", "read_layers", "SOLID", "CROP_PIXELS"]
+__all__ = ["LayerStack", "model_layers", "read_layers", "rounded", "SOLID", "CROP_PIXELS"]

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..field import evaluate
 from ..skeleton import Skeleton
+from .stream import rounded
 
 #: perpendicular directions per axis point (pairs make diameters)
 DIRECTIONS = 12
@@ -64,8 +65,9 @@ class ThinSegment:
     layer: int
 
     def to_dict(self) -> dict:
-        return {"segment": self.segment, "width": self.width, "radius_width": self.radius_width,
-                "threshold": self.threshold, "x": self.x, "y": self.y, "z": self.z, "layer": self.layer}
+        return {"segment": self.segment, "width": rounded(self.width), "radius_width": rounded(self.radius_width),
+                "threshold": rounded(self.threshold), "x": rounded(self.x), "y": rounded(self.y), "z": rounded(self.z),
+                "layer": self.layer}
 
 
 def printed_widths(skel: Skeleton, segments: np.ndarray | None = None) -> np.ndarray:

@@ -28,6 +28,7 @@ import numpy as np
 
 from .._kernels.labels import label_layer, link_layers, region_stats
 from ..grid import SliceGrid
+from .stream import rounded
 
 #: bookkeeping columns of a component: voxels, sum i, sum j, sum k, i0, j0, k0, i1, j1, k1, open, plate
 _N, _SI, _SJ, _SK, _I0, _J0, _K0, _I1, _J1, _K1, _OPEN, _PLATE = range(12)
@@ -65,8 +66,8 @@ class Trap:
     bbox: tuple[int, int, int, int, int, int]
 
     def to_dict(self) -> dict:
-        return {"kind": self.kind, "volume": self.volume, "voxels": self.voxels, "x": self.x, "y": self.y,
-                "z": self.z, "layers": list(self.layers), "bbox": list(self.bbox)}
+        return {"kind": self.kind, "volume": rounded(self.volume), "voxels": self.voxels, "x": rounded(self.x),
+                "y": rounded(self.y), "z": rounded(self.z), "layers": list(self.layers), "bbox": list(self.bbox)}
 
 
 class TrapFinder:
