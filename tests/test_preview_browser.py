@@ -9,6 +9,7 @@ a skip, unless ``SKELSLICE_BROWSER_OPTIONAL=1`` says the browser is optional
 """
 from __future__ import annotations
 
+import io
 import json
 import os
 
@@ -115,5 +116,23 @@ def test_keyboard_steps_and_zoom_keep_the_pixels(driver, stacks):
     assert [(x["kind"], x["layer"]) for x in f] == [("island", 31), ("island", 37)]
     text = driver.find_element("id", "findings").text
     assert "layer 31" in text and "layer 37" in text
-    png = driver.get_screenshot_as_png()
-    assert len(png) > 10_000
+    # what is on screen: at one screen pixel per layer pixel, overlays off, the screenshot's
+    # pixels over the canvas are the layer's (the outermost ring is under the frame line)
+    keys.send_keys("c").send_keys("f").perform()
+    assert driver.execute_script("return [window.skelslice.state.contours, window.skelslice.state.findings]") \
+        == [False, False]
+    driver.execute_script("window.skelslice.setView(1, 20, 30)")
+    left, top = driver.execute_script("const r = document.getElementById('view').getBoundingClientRect();"
+                                      "return [Math.round(r.left), Math.round(r.top)]")
+    shot = np.asarray(Image.open(io.BytesIO(driver.get_screenshot_as_png())).convert("RGB"))
+    want = png_layer(stack, 31)
+    h, w = want.shape
+    seen = shot[top + 30:top + 30 + h, left + 20:left + 20 + w]
+    assert seen.shape[:2] == want.shape
+    assert np.array_equal(seen[1:-1, 1:-1, 0], want[1:-1, 1:-1]) and want[1:-1, 1:-1].any()
+    # drag pans
+    before = driver.execute_script("return [window.skelslice.state.panX, window.skelslice.state.panY]")
+    view = driver.find_element("id", "view")
+    ActionChains(driver).move_to_element(view).click_and_hold().move_by_offset(40, 25).release().perform()
+    after = driver.execute_script("return [window.skelslice.state.panX, window.skelslice.state.panY]")
+    assert after == pytest.approx([before[0] + 40, before[1] + 25], abs=1)
