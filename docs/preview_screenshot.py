@@ -28,7 +28,7 @@ def main(argv=None) -> int:
     ap.add_argument("--pixel-size", default="0.05")
     ap.add_argument("--layer", default="first-finding",
                     help="layer to show: a number, 'first-finding' or 'middle'")
-    ap.add_argument("--size", type=int, nargs=2, default=(1280, 760))
+    ap.add_argument("--size", type=int, nargs=2, default=(1400, 1000))
     ap.add_argument("--zoom", type=float, default=1.0, help="zoom factor after fitting")
     a = ap.parse_args(argv)
     why = browser.missing()

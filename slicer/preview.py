@@ -17,7 +17,8 @@ What the file holds
   the strings;
 * the check's findings (islands, thin struts, traps, area jumps) with their
   layer and pixel position, the per-layer cured area, the contours (rings
-  in pixel coordinates, simplified to a fifth of a pixel), renders of the
+  in pixel coordinates, simplified to a fifth of a pixel, as differences of
+  integers in 1/16 pixel), renders of the
   part (the scene's transparent render when the scene is known, and X-ray
   projections of the layers), and the grid.
 
@@ -47,6 +48,8 @@ from .printability.stream import SOLID, LayerStack
 MAX_FINDINGS = 2000
 #: contour simplification, pixels
 CONTOUR_SIMPLIFY = 0.2
+#: contour coordinates are stored in 1/CONTOUR_QUANTUM pixel
+CONTOUR_QUANTUM = 16
 #: longest side of the X-ray projections, pixels
 XRAY_SIDE = 360
 #: opacity of one solid voxel in the X-ray projections
@@ -140,7 +143,7 @@ class PreviewBuilder:
             "plate": st.frame == "plate", "layers": [list(v) if v else None for v in self.layers],
             "areas": [round(a, 6) for a in self.areas], "findings": findings, "findings_left": left,
             "check": None if report is None else {"ok": report.ok, "blocking": report.blocking},
-            "contours": _contours_px(contours, st) if contours else None,
+            "contours": _contours_px(contours, st) if contours else None, "contour_quantum": CONTOUR_QUANTUM,
             "renders": list(renders or []) + self.xray(), "job": job, "start": int(start),
         }
         text = json.dumps(data, separators=(",", ":")).replace("</", "<\\/")
@@ -222,7 +225,9 @@ def _findings(report: CheckReport, st: LayerStack) -> list[dict]:
 
 
 def _contours_px(contours: dict, st: LayerStack) -> dict:
-    """Layer -> rings as flat ``[c0, r0, c1, r1, ...]`` pixel coordinates (rounded to 0.01 px, simplified)."""
+    """Layer -> rings in pixel coordinates, simplified to :data:`CONTOUR_SIMPLIFY`
+    pixels and stored compactly: integers in 1/:data:`CONTOUR_QUANTUM` pixel, the
+    first point then the differences, ``[c0, r0, dc1, dr1, ...]``."""
     g = st.grid
     px, py = g.pixel_size
     x0, y0 = g.origin[0], g.origin[1]
@@ -238,10 +243,18 @@ def _contours_px(contours: dict, st: LayerStack) -> dict:
             pts = np.asarray(simple.coords)[:-1] if not simple.is_empty else cr
             if pts.shape[0] < 3:
                 pts = cr
-            flat.append(np.round(pts, 2).ravel().tolist())
+            q = np.rint(pts * CONTOUR_QUANTUM).astype(np.int64)
+            q[1:] -= q[:-1].copy()
+            flat.append(q.ravel().tolist())
         if flat:
             out[str(int(k))] = flat
     return out
+
+
+def decode_ring(ints) -> np.ndarray:
+    """The (n, 2) pixel coordinates (column, row) of one stored ring (inverse of the page's encoding)."""
+    q = np.asarray(ints, dtype=np.int64).reshape(-1, 2)
+    return np.cumsum(q, axis=0) / CONTOUR_QUANTUM
 
 
 def contours_of_polygons(items) -> dict:
@@ -284,4 +297,5 @@ def read_contours(path) -> dict:
     return out
 
 
-__all__ = ["PreviewBuilder", "layer_png", "png_data_uri", "contours_of_polygons", "read_contours", "MAX_FINDINGS"]
+__all__ = ["PreviewBuilder", "layer_png", "png_data_uri", "contours_of_polygons", "read_contours", "decode_ring",
+           "MAX_FINDINGS", "CONTOUR_QUANTUM"]

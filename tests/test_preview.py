@@ -24,7 +24,7 @@ from PIL import Image
 
 from slicer import Skeleton
 from slicer.cli import main
-from slicer.preview import layer_png
+from slicer.preview import decode_ring, layer_png
 
 
 def run(*args):
@@ -111,7 +111,7 @@ def test_preview_of_a_png_stack(job, tmp_path):
     assert doc["areas"][31] == pytest.approx(np.count_nonzero(layers[31]) * 0.05 ** 2)
     # the contours of the file, in pixels: the ring of layer 31's island passes between its
     # pixel centres and the outside ones (within a pixel of its extreme pixels)
-    ring = np.array(doc["contours"]["31"][-1]).reshape(-1, 2)
+    ring = decode_ring(doc["contours"]["31"][-1])
     rows, cols = np.nonzero(layers[31][:, 35:])
     cols = cols + 35
     assert cols.min() - 1 < ring[:, 0].min() <= cols.min() and cols.max() <= ring[:, 0].max() < cols.max() + 1

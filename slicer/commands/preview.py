@@ -4,6 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+from tqdm import tqdm
 
 from ..atomic import check_destination
 from ..config import config_option
@@ -16,6 +17,9 @@ from ..scene_io import load_scene
 from ..slicing import SliceResult
 from .check import check_options, checked_stack, options_of
 from .options import grid_options, print_options, radius_option, trace_options
+
+#: default contour tolerance of a scene's preview: the traced pixel / this
+CONTOUR_TOL_PIXELS = 8
 
 
 @click.command("preview")
@@ -30,8 +34,9 @@ from .options import grid_options, print_options, radius_option, trace_options
 @click.option("--contours", "contours_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Overlay the contours of this file (written by `slice --contours`, .geojson or .json).")
 @click.option("--no-contours", is_flag=True, help="Do not compute the contours of a scene.")
-@click.option("--contour-tol", type=float, default=1e-3, show_default=True,
-              help="Accuracy of contours computed from a scene, mm.")
+@click.option("--contour-tol", type=float, default=None, metavar="MM",
+              help="Accuracy of contours computed from a scene, mm (default: an eighth of the pixel; "
+                   "the page draws them simplified to a fifth of a pixel).")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False), default=None, metavar="SCENE",
               help="With an output: the scene it was sliced from, for the transparent render "
                    "(and the thin-strut check of a stack in scene coordinates).")
@@ -67,7 +72,10 @@ def command(source, out, radius, no_check, contours_file, no_contours, contour_t
         contours = read_contours(contours_file)
     elif skel is not None and not no_contours and isinstance(res, SliceResult):
         placement = plate_placement(res, resolved.settings)
-        contours = contours_of_polygons(iter_contours(skel, res, contour_tol, placement=placement))
+        tol = contour_tol if contour_tol is not None else min(res.grid.pixel_size) / CONTOUR_TOL_PIXELS
+        items = iter_contours(skel, res, tol, placement=placement)
+        contours = contours_of_polygons(tqdm(items, total=stack.grid.layers, unit="layer", desc="contours",
+                                             disable=None, leave=False))
     renders = []
     if scene is not None and not no_render:
         img = render(scene, size=(render_size, render_size), view="iso").image(transparent=True)
