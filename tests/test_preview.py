@@ -22,7 +22,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
+from formats.goo import HEADER_SIZE, encode_layer
 from slicer import Skeleton
+from slicer._kernels.rle import OK, decode_goo
 from slicer.cli import main
 from slicer.preview import decode_ring, layer_png
 
@@ -179,3 +181,45 @@ def test_refusals(job, tmp_path):
     assert run("preview", scene, "-o", html, "--pixel-size", "0.1", "-q").exit_code == 0
     r = run("preview", scene, "-o", html, "--pixel-size", "0.1")
     assert r.exit_code == 2 and "already exists" in r.output
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(1, 40), st.integers(1, 40), st.integers(0, 2**32 - 1), st.floats(0.0, 0.5))
+def test_goo_decoder_inverts_the_writer(h, w, seed, grey_share):
+    """The read-back decoder (a kernel) against the writer's encoder; cut
+    payloads are reported, never decoded into a wrong image."""
+    rng = np.random.default_rng(seed)
+    img = np.where(rng.random((h, w)) < 0.5, 0, 255).astype(np.uint8)
+    m = rng.random(img.shape) < grey_share
+    img[m] = rng.integers(0, 256, int(m.sum()))
+    payload, _ = encode_layer(img)
+    out = np.zeros(img.size, np.uint8)
+    status, _ = decode_goo(np.frombuffer(payload, np.uint8), out)
+    assert status == OK and np.array_equal(out.reshape(img.shape), img)
+    if len(payload) > 1:
+        status, _ = decode_goo(np.frombuffer(payload[:-1], np.uint8), np.zeros(img.size, np.uint8))
+        assert status != OK
+    status, _ = decode_goo(np.frombuffer(payload, np.uint8), np.zeros(img.size - 1, np.uint8)) if img.size > 1 \
+        else (1, 0)
+    assert status != OK
+
+
+def test_corrupt_archives_are_refused_by_name(job, tmp_path):
+    d, scene = job
+    goo = tmp_path / "j.goo"
+    assert run("slice", scene, "-o", goo, "--printer", "elegoo-mars-4-ultra", "--layer-height", "0.2",
+               "-q").exit_code == 0
+    raw = bytearray(goo.read_bytes())
+    off = HEADER_SIZE + 66 + 5                       # first layer's payload
+    raw[off] ^= 0x01
+    bad = tmp_path / "bad.goo"
+    bad.write_bytes(bytes(raw))
+    r = run("preview", bad, "-o", tmp_path / "v.html")
+    assert r.exit_code == 2 and "layer 0: bad checksum" in r.output, r.output
+    r = run("check", bad)
+    assert r.exit_code == 2 and "bad checksum" in r.output
+    empty = tmp_path / "x.sl1"
+    with zipfile.ZipFile(empty, "w") as z:
+        z.writestr("readme.txt", "no")
+    r = run("check", empty)
+    assert r.exit_code == 2 and "no config.ini" in r.output, r.output
