@@ -26,7 +26,7 @@ from .grid import SliceGrid, make_grid
 from .jobspec import ResolvedJob, SliceJob
 from .layers import plate_placement, write_stack
 from .skeleton import Skeleton
-from .slicing import slice_skeleton
+from .slicing import SliceResult, slice_skeleton
 from .tiles import plan_slice, slice_planned
 
 
@@ -87,37 +87,20 @@ def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: boo
         job = SliceJob.from_options(**options)
     elif options:
         raise TypeError(f"run_slice takes a SliceJob or keyword options, not both (got {sorted(options)})")
-    out_opts, scale = job.output, job.scale
+    out_opts = job.output
     check_destination(Path(out), out_opts.force)          # fail before any work
     if out_opts.contours is not None:                      # ``--contours FILE`` beside the images
         check_destination(Path(out_opts.contours), out_opts.force)
     resolved = job.resolve(out)
+    traced = _trace(skel, job, resolved, progress=progress, dry_run=dry_run, report=report,
+                    executor_info=executor_info)
+    if dry_run:
+        plan = traced
+        est = print_estimate(resolved.settings, plan.grid.layers) if resolved.printer else None
+        return {**plan.grid.to_dict(), "plan": plan.to_dict(), "plan_text": plan.describe(), "dry_run": True,
+                "output": str(out), "format": resolved.fmt, "estimate": est and est.to_dict()}
+    res = traced
     opts = job.trace_options(resolved)
-    g = job.grid
-    grid_args = (skel, resolved.pitch[0], resolved.pitch[1], resolved.layer_height, g.bounds)
-    refuse_off_plate(skel, resolved, g.bounds)
-    if dry_run or report is not None or scale.planned or executor_info is not None:
-        executor = scale.executor
-        if executor is None or isinstance(executor, str):
-            executor_info = describe_executor(executor or "serial", scale.workers, scale.scheduler)
-        args = (*grid_args, opts.method, opts.bucket, opts.threads, opts.strict, opts.spans)
-        plan = plan_slice(*args, max_memory=scale.max_memory, executor_info=executor_info, tile=scale.tile,
-                          slab=scale.slab, sample=True if dry_run else None)
-        if report is not None:
-            report(plan.describe())
-        if dry_run:
-            est = print_estimate(resolved.settings, plan.grid.layers) if resolved.printer else None
-            return {**plan.grid.to_dict(), "plan": plan.to_dict(), "plan_text": plan.describe(), "dry_run": True,
-                    "output": str(out), "format": resolved.fmt, "estimate": est and est.to_dict()}
-        res = slice_planned(*args, plan=plan, executor=executor, executor_info=executor_info,
-                            workers=scale.workers, scheduler=scale.scheduler, progress=progress)
-    else:
-        res = slice_skeleton(*grid_args, **opts.trace_kwargs())
-    if res.n_runs == 0 and g.bounds is None:
-        raise GridError(
-            "the surface is empty: no voxel centre is inside the solid (F >= 1). Struts shorter than "
-            "about 0.688 x their radius, or thinner than the pixel, have no printable surface; "
-            "see `skelslice info SCENE --pixel-size MM`")
     meta = {"generator": f"skelslice {__version__}", "method": opts.method, "bucket": res.stats["bucket"]}
     if out_opts.scene_name:
         meta["scene"] = out_opts.scene_name
@@ -137,6 +120,65 @@ def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: boo
     return {**grid.to_dict(), **res.stats, "write_seconds": write_s, "runs": res.n_runs,
             "output": str(out), "format": resolved.fmt, "contours": contour_info,
             "estimate": written.get("estimate") and written["estimate"].to_dict()}
+
+
+def slice_job(skel: Skeleton, job: SliceJob, *, progress: bool | None = None, report=None,
+              executor_info=None) -> tuple[SliceResult, ResolvedJob]:
+    """Slice ``skel`` in memory as ``run_slice`` would, writing nothing.
+
+    For consumers of the layer stream (``skelslice check``, ``skelslice
+    preview``): the same checks, plate refusal and tracing as
+    :func:`run_slice`, the output format being the printer's (or a PNG
+    stack), whose limits apply.
+
+    Returns
+    -------
+    result : SliceResult or slicer.tiles.StreamedResult
+        The traced runs (a streamed result, to be iterated once, when the job
+        asks for tiles, slabs or an executor).
+    resolved : slicer.jobspec.ResolvedJob
+        The checked settings; ``resolved.settings`` gives the output layers
+        (:func:`slicer.antialias.output_layers`).
+
+    Raises
+    ------
+    OptionError, FormatError, GridError
+        As :func:`run_slice`.
+    """
+    resolved = job.resolve("")
+    return _trace(skel, job, resolved, progress=progress, report=report, executor_info=executor_info), resolved
+
+
+def _trace(skel: Skeleton, job: SliceJob, resolved: ResolvedJob, *, progress=None, dry_run: bool = False,
+           report=None, executor_info=None):
+    """Trace a resolved job (planned in tiles and slabs when asked); with
+    ``dry_run`` return the tile plan instead."""
+    scale = job.scale
+    opts = job.trace_options(resolved)
+    g = job.grid
+    grid_args = (skel, resolved.pitch[0], resolved.pitch[1], resolved.layer_height, g.bounds)
+    refuse_off_plate(skel, resolved, g.bounds)
+    if dry_run or report is not None or scale.planned or executor_info is not None:
+        executor = scale.executor
+        if executor is None or isinstance(executor, str):
+            executor_info = describe_executor(executor or "serial", scale.workers, scale.scheduler)
+        args = (*grid_args, opts.method, opts.bucket, opts.threads, opts.strict, opts.spans)
+        plan = plan_slice(*args, max_memory=scale.max_memory, executor_info=executor_info, tile=scale.tile,
+                          slab=scale.slab, sample=True if dry_run else None)
+        if report is not None:
+            report(plan.describe())
+        if dry_run:
+            return plan
+        res = slice_planned(*args, plan=plan, executor=executor, executor_info=executor_info,
+                            workers=scale.workers, scheduler=scale.scheduler, progress=progress)
+    else:
+        res = slice_skeleton(*grid_args, **opts.trace_kwargs())
+    if res.n_runs == 0 and g.bounds is None:
+        raise GridError(
+            "the surface is empty: no voxel centre is inside the solid (F >= 1). Struts shorter than "
+            "about 0.688 x their radius, or thinner than the pixel, have no printable surface; "
+            "see `skelslice info SCENE --pixel-size MM`")
+    return res
 
 
 def footprint_lower_bound(skel: Skeleton, grid: SliceGrid, probes: int = 256) -> np.ndarray | None:
@@ -261,4 +303,4 @@ def check_not_input(out, *inputs) -> None:
             raise OutputError(f"{out}: the output {what} {src}; choose another output")
 
 
-__all__ = ["run_slice", "footprint_lower_bound", "refuse_off_plate", "check_not_input"]
+__all__ = ["run_slice", "slice_job", "footprint_lower_bound", "refuse_off_plate", "check_not_input"]

@@ -1,11 +1,11 @@
 """CLI commands, one module each. ``COMMANDS`` lists what :mod:`slicer.cli` registers."""
 from __future__ import annotations
 
-from . import bench, info, lattice, printers, render, validate
+from . import bench, check, info, lattice, preview, printers, render, validate
 from . import slice as slice_
 
 #: the commands, in the order ``skelslice --help`` lists them
-COMMANDS = [lattice.command, info.command, slice_.command, printers.command, render.command, validate.command,
-            bench.command]
+COMMANDS = [lattice.command, info.command, slice_.command, check.command, preview.command, printers.command,
+            render.command, validate.command, bench.command]
 
 __all__ = ["COMMANDS"]
