@@ -1,7 +1,7 @@
 """One tapered segment along any ray, through the tracer's own kernels.
 
 The non-strict tracer (``--strict`` off) relies on one segment's field being
-unimodal along every ray (math.md §3.3): per primitive, a piece whose ends
+unimodal along every ray (docs/math.md §3.3): per primitive, a piece whose ends
 both slope up is taken as increasing, and an ambiguous piece is bounded
 below by its smaller end value. These tests call the kernels that do this —
 :func:`slicer._kernels.raysupport.ray_support` (support entry and exit, the
