@@ -25,7 +25,7 @@ from formats import format_for, writer_for
 from formats.printers import PRINTERS, Printer, PrintSettings, get_printer
 
 from .antialias import check_aa
-from .checks import integer, positive_number, vector
+from .checks import fmt_num, integer, positive_number, vector
 from .errors import OptionError
 from .slicing import METHODS
 from .tileplan import parse_size
@@ -281,7 +281,7 @@ class SliceJob:
                 bottom_layers=(integer(p.bottom_layers, "--bottom-layers", lo=0) if p.bottom_layers is not None
                                else (prn.bottom_layers if prn else 10)),
                 aa=aa, aa_z=bool(p.aa_z), gamma=gamma,
-                at=None if p.at is None else vector(p.at, 2, "--at"))
+                at=None if p.at is None else _plate_point(p.at, prn))
             check = getattr(cls, "check_settings", None)
             if check is not None:
                 check(settings)
@@ -312,6 +312,17 @@ def _normalise(name: str, value):
 
 def _default(value, name: str, default: float) -> float:
     return default if value is None else positive_number(value, name)
+
+
+def _plate_point(at, prn: Printer | None) -> tuple[float, float]:
+    """``--at X Y``: two finite numbers on the printer's plate (mm)."""
+    x, y = vector(at, 2, "--at")
+    if prn is not None:
+        W, H = prn.display
+        if not (0.0 <= x <= W and 0.0 <= y <= H):
+            raise OptionError(f"--at {fmt_num(x)} {fmt_num(y)} is off the {prn.label} plate "
+                              f"(X 0..{W:g}, Y 0..{H:g} mm)")
+    return x, y
 
 
 def _check_trace(t: TraceOptions) -> None:
