@@ -11,6 +11,8 @@ The main entry points, importable from ``slicer`` itself:
 ``slice_skeleton``      inside runs per pixel column (every voxel centre exact)
 ``run_slice``           the ``slice`` command's job: slice and write a format
 ``SliceJob``            a job's settings as data (grid, tracing, printer, scale)
+``Part``, ``load_part`` a lattice with solid and clipping meshes (docs/parts.md)
+``slice_part``          :func:`slice_skeleton` for a part
 ======================  ====================================================
 
 Examples
@@ -23,7 +25,7 @@ Examples
 >>> float(s.field([[0.0, 0.0, 2.0]])[0]) > 1       # on the axis: inside
 True
 
-The job-level names (``run_slice``, ``SliceJob``) are loaded on first use:
+The job-level names (``run_slice``, ``SliceJob``) and the parts' are loaded on first use:
 they sit above the output formats (:mod:`formats`), which themselves use
 this package's core modules, so importing them here eagerly would make
 ``import formats`` circular.
@@ -42,7 +44,8 @@ from .skeleton import Skeleton
 from .slicing import SliceResult, slice_skeleton
 
 #: name -> module of the names loaded on first use (see the module docstring)
-_LAZY = {"run_slice": "slicer.job", "SliceJob": "slicer.jobspec"}
+_LAZY = {"run_slice": "slicer.job", "SliceJob": "slicer.jobspec", "Part": "slicer.parts", "load_part": "slicer.parts",
+         "slice_part": "slicer.part_slicing"}
 
 
 def __getattr__(name: str):
@@ -59,7 +62,7 @@ def __dir__():
 
 __all__ = [
     "Skeleton", "kernel_normalisation", "load_scene", "save_scene", "generate_lattice", "slice_skeleton",
-    "SliceResult", "run_slice", "SliceJob",
+    "SliceResult", "run_slice", "SliceJob", "Part", "load_part", "slice_part",
     "SkelsliceError", "SceneError", "UsageError", "OptionError", "GridError", "FormatError",
     "MissingDependencyError", "OutputError", "__version__",
 ]

@@ -36,6 +36,9 @@ from .atomic import AtomicFile, check_destination
 from .checks import positive_number
 from .errors import GridError
 from .field import evaluate
+from .mesh_slicing import Sections
+from .part_slicing import PartResult, PartStreamedResult
+from .parts import ROLES
 from .skeleton import Skeleton
 from .slicing import SliceResult
 
@@ -628,6 +631,9 @@ def iter_contours(skel: Skeleton, result: SliceResult, tol: float = 1e-3,
     polys : shapely.MultiPolygon
     """
     tol = _check_tol(tol)
+    if isinstance(result, (PartResult, PartStreamedResult)):     # a lattice with meshes
+        yield from iter_part_contours(result, tol, stats, placement)
+        return
     g = result.grid
     k_lo, k_hi = 0, g.layers
     if placement is not None:
@@ -646,6 +652,91 @@ def iter_contours(skel: Skeleton, result: SliceResult, tol: float = 1e-3,
         else:
             import shapely.affinity
 
+            yield k - k_lo, (k - k_lo + 0.5) * g.layer_height, shapely.affinity.translate(polys, dx, dy)
+
+
+def _polygons_only(geom):
+    """The polygons of a shapely geometry as an oriented MultiPolygon (outer rings
+    counter-clockwise, holes clockwise)."""
+    import shapely
+    from shapely.geometry.polygon import orient
+
+    polys = [g for g in shapely.get_parts(geom) if g.geom_type == "Polygon" and not g.is_empty]
+    polys += [p for g in shapely.get_parts(geom) if g.geom_type == "MultiPolygon" for p in g.geoms]
+    return shapely.MultiPolygon([orient(p, 1.0) for p in polys])
+
+
+def _part_sections(part) -> dict:
+    return {role: Sections(part.of_role(role)) for role in ROLES if part.of_role(role)}
+
+
+def _part_layer(result, sections: dict, img, k: int, tol: float, stats: dict | None):
+    """Contours of layer ``k`` of a sliced part; ``img`` is the lattice's raster of that layer."""
+    import shapely
+
+    g, lat = result.grid, result.lattice
+    z = g.origin[2] + k * g.layer_height
+    geom = shapely.MultiPolygon()
+    if img is not None and img.any():          # the lattice's own contours, on its own (uncut) grid
+        lz = lat.grid.origin[2] + (k + result.lattice_offset[2]) * lat.grid.layer_height
+        geom = rings_to_multipolygon(mask_rings(result.part.skeleton, img.astype(bool), lat.grid.origin[:2],
+                                                lat.grid.pixel_size, lz, tol, stats=stats))
+    for role, op in (("clip-inside", "intersection"), ("clip-outside", "difference"), ("solid", "union")):
+        if role in sections:
+            geom = getattr(geom, op)(rings_to_multipolygon(sections[role].rings(z)))
+    return z, _polygons_only(geom)
+
+
+def part_layer_contours(result, k: int, tol: float = 1e-3):
+    """Contours of layer ``k`` of a sliced part (:class:`slicer.part_slicing.PartResult`):
+    a valid MultiPolygon, mm, as :func:`layer_contours` gives for a lattice."""
+    tol = _check_tol(tol)
+    lat = result.lattice
+    img = layer_mask(lat, int(k) + result.lattice_offset[2]) if lat is not None else None
+    return _part_layer(result, _part_sections(result.part), img, int(k), tol, None)[1]
+
+
+def iter_part_contours(result, tol: float = 1e-3, stats: dict | None = None,
+                       placement=None) -> Iterator[tuple[int, float, object]]:
+    """Contours of a sliced part (:mod:`slicer.part_slicing`), every layer, bottom first.
+
+    Each layer's lattice contours (from the lattice's own raster, vertices on
+    its surface to ``tol``) are combined with the meshes' exact cross-sections
+    (:class:`slicer.mesh_slicing.Sections`) by polygon booleans:
+    ``((lattice ∩ CI) − CO) ∪ S``. Arguments and conventions as
+    :func:`iter_contours`.
+    """
+    import shapely.affinity
+
+    if isinstance(result, PartStreamedResult):
+        if placement is not None:
+            raise GridError("contours on a printer's plate need the whole job in memory: raise --max-memory")
+        k = 0
+        for slab in result.iter_slabs():
+            for kk, z, mp in iter_part_contours(slab, tol, stats):
+                yield k + kk, z, mp
+            k += slab.grid.layers
+        return
+    g = result.grid
+    sections = _part_sections(result.part)
+    k_lo, k_hi = 0, g.layers
+    if placement is not None:
+        k_lo, k_hi = placement.k_first, placement.k_first + placement.layers
+        dx, dy, _ = placement.offset(g)
+    lat = result.lattice
+    lat_layers = lat.iter_layers(1) if lat is not None else None
+    for _ in range(result.lattice_offset[2] if lat is not None else 0):
+        next(lat_layers)
+    for k in range(g.layers):
+        img = next(lat_layers) if lat_layers is not None else None
+        if k < k_lo:
+            continue
+        if k >= k_hi:
+            break
+        z, polys = _part_layer(result, sections, img, k, tol, stats)
+        if placement is None:
+            yield k, z, polys
+        else:
             yield k - k_lo, (k - k_lo + 0.5) * g.layer_height, shapely.affinity.translate(polys, dx, dy)
 
 
@@ -713,6 +804,6 @@ def write_contours(skel: Skeleton, result: SliceResult, path, tol: float = 1e-3,
     return {"layers": n, "vertices": nv, "seconds": time.perf_counter() - t0, "path": str(path)}
 
 
-__all__ = ["layer_contours", "iter_contours", "layer_mask", "mask_rings", "refine_rings",
+__all__ = ["layer_contours", "iter_contours", "iter_part_contours", "part_layer_contours", "layer_mask", "mask_rings", "refine_rings",
            "rings_to_multipolygon", "signed_areas", "solve_crossings", "plane_distance",
            "project_to_contour", "write_contours"]

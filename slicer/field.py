@@ -10,6 +10,8 @@ import numpy as np
 
 from ._kernels.binning import bin_boxes
 from ._kernels.points import field_at_points
+from ._kernels.union import field_max_at_points
+from .blend import check_blend
 from .errors import SceneError
 
 if TYPE_CHECKING:          # annotations only: the skeleton module imports this one
@@ -124,7 +126,7 @@ def as_points(points, name: str = "points") -> np.ndarray:
     return np.ascontiguousarray(p)
 
 
-def evaluate(skel: Skeleton, points, gradient: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+def evaluate(skel: Skeleton, points, gradient: bool = False, blend: str = "sum") -> tuple[np.ndarray, np.ndarray | None]:
     """Field (and gradient) of a skeleton at points.
 
     Only the segments whose support box covers a point's grid cell are
@@ -135,18 +137,32 @@ def evaluate(skel: Skeleton, points, gradient: bool = False) -> tuple[np.ndarray
     skel : Skeleton
     points : (k, 3) float64, mm
     gradient : bool, default False
+    blend : {"sum", "union"}
+        ``sum``: the sum of the segments' fields (the paper's blending);
+        ``union``: their maximum, each strut keeping its own surface
+        (:mod:`slicer.blend`); the gradient is then that of the largest field.
 
     Returns
     -------
     f : (k,) float64
     g : (k, 3) float64, 1/mm, or None
+
+    Examples
+    --------
+    >>> from slicer import Skeleton
+    >>> s = Skeleton([[0, 0, 0], [4, 0, 0], [0, 4, 0]], [[0, 1], [0, 2]], [[1.0, 1.0], [1.0, 1.0]])
+    >>> p = [[0.5, 0.5, 0.0]]
+    >>> bool(evaluate(s, p)[0][0] > evaluate(s, p, blend="union")[0][0])
+    True
     """
+    union = check_blend(blend) == "union"
     p = as_points(points)
     if skel.n_segments == 0:
         return np.zeros(p.shape[0]), (np.zeros_like(p) if gradient else None)
     table, grid = point_grid(skel)
-    f, g = field_at_points(p, table, grid.offsets, grid.ids, grid.origin, grid.cell, grid.dims,
-                           skel.degree // 2, 1.0 / skel.sigma**2, skel.normalisation, bool(gradient))
+    kern = field_max_at_points if union else field_at_points
+    f, g = kern(p, table, grid.offsets, grid.ids, grid.origin, grid.cell, grid.dims,
+                skel.degree // 2, 1.0 / skel.sigma**2, skel.normalisation, bool(gradient))
     return f, (g if gradient else None)
 
 

@@ -25,6 +25,8 @@ from .field import evaluate
 from .grid import SliceGrid, make_grid
 from .jobspec import ResolvedJob, SliceJob
 from .layers import plate_placement, write_stack
+from .part_slicing import part_grid, plan_part, slice_part, slice_part_planned
+from .parts import Part
 from .skeleton import Skeleton
 from .slicing import SliceResult, slice_skeleton
 from .tiles import plan_slice, slice_planned
@@ -92,13 +94,15 @@ def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: boo
     if out_opts.contours is not None:                      # ``--contours FILE`` beside the images
         check_destination(Path(out_opts.contours), out_opts.force)
     resolved = job.resolve(out)
+    if isinstance(skel, Part) and not skel.has_meshes:     # a lattice alone: the lattice's own path
+        skel = skel.skeleton
     traced = _trace(skel, job, resolved, progress=progress, dry_run=dry_run, report=report,
                     executor_info=executor_info)
     if dry_run:
-        plan = traced
-        est = print_estimate(resolved.settings, plan.grid.layers) if resolved.printer else None
-        return {**plan.grid.to_dict(), "plan": plan.to_dict(), "plan_text": plan.describe(), "dry_run": True,
-                "output": str(out), "format": resolved.fmt, "estimate": est and est.to_dict()}
+        plan = traced if isinstance(traced, dict) else {
+            **traced.grid.to_dict(), "plan": traced.to_dict(), "plan_text": traced.describe(), "dry_run": True}
+        est = print_estimate(resolved.settings, plan["layers"]) if resolved.printer else None
+        return {**plan, "output": str(out), "format": resolved.fmt, "estimate": est and est.to_dict()}
     res = traced
     opts = job.trace_options(resolved)
     meta = {"generator": f"skelslice {__version__}", "method": opts.method, "bucket": res.stats["bucket"]}
@@ -152,13 +156,23 @@ def slice_job(skel: Skeleton, job: SliceJob, *, progress: bool | None = None, re
 def _trace(skel: Skeleton, job: SliceJob, resolved: ResolvedJob, *, progress=None, dry_run: bool = False,
            report=None, executor_info=None):
     """Trace a resolved job (planned in tiles and slabs when asked); with
-    ``dry_run`` return the tile plan instead."""
+    ``dry_run`` return the tile plan instead (a part's: its summary dict)."""
     scale = job.scale
     opts = job.trace_options(resolved)
     g = job.grid
+    part = skel if isinstance(skel, Part) else None
+    if part is not None and not part.has_meshes:           # a lattice alone: the lattice's own path
+        skel, part = part.skeleton, None
     grid_args = (skel, resolved.pitch[0], resolved.pitch[1], resolved.layer_height, g.bounds)
-    refuse_off_plate(skel, resolved, g.bounds)
-    if dry_run or report is not None or scale.planned or executor_info is not None:
+    if part is None:
+        refuse_off_plate(skel, resolved, g.bounds)
+    elif not part.has_clips and part.skeleton is not None:    # solids only add to the lattice's footprint
+        refuse_off_plate(part.skeleton, resolved, g.bounds)
+    if part is not None:
+        res = _slice_part_job(part, grid_args, opts, scale, dry_run, report, executor_info, progress)
+        if dry_run:
+            return res                                     # the plan's summary (a dict)
+    elif dry_run or report is not None or scale.planned or executor_info is not None:
         executor = scale.executor
         if executor is None or isinstance(executor, str):
             executor_info = describe_executor(executor or "serial", scale.workers, scale.scheduler)
@@ -179,6 +193,35 @@ def _trace(skel: Skeleton, job: SliceJob, resolved: ResolvedJob, *, progress=Non
             "about 0.688 x their radius, or thinner than the pixel, have no printable surface; "
             "see `skelslice info SCENE --pixel-size MM`")
     return res
+
+
+def _slice_part_job(part: Part, grid_args: tuple, opts, scale, dry_run: bool, report, executor_info, progress):
+    """The slicing step of :func:`run_slice` for a part with meshes (:mod:`slicer.part_slicing`):
+    returns the result, or with ``dry_run`` the plan's summary."""
+    args = (part, *grid_args[1:], opts.method, opts.bucket, opts.threads, opts.strict, opts.spans, opts.span_tol)
+    planned = dry_run or report is not None or scale.planned or executor_info is not None
+    if not planned:
+        return slice_part(*args, blend=opts.blend)
+    executor = scale.executor
+    if executor is None or isinstance(executor, str):
+        executor_info = describe_executor(executor or "serial", scale.workers, scale.scheduler)
+    if part.skeleton is None:            # meshes only: nothing to tile
+        grid = part_grid(part, *grid_args[1:])
+        text = (f"grid:      {grid.width} x {grid.height} px x {grid.layers} layers = {grid.n_voxels:.3g} voxels "
+                f"(trimmed to the part after slicing)\nmeshes:    {part.describe()} (cut layer by layer, in memory)")
+        if report is not None:
+            report(text)
+        if dry_run:
+            return {**grid.to_dict(), "plan": {"grid": grid.to_dict()}, "plan_text": text, "dry_run": True}
+        return slice_part(*args, blend=opts.blend)
+    plan = plan_part(*args, max_memory=scale.max_memory, executor_info=executor_info, tile=scale.tile,
+                     slab=scale.slab, sample=True if dry_run else None)
+    if report is not None:
+        report(plan.describe())
+    if dry_run:
+        return {**plan.grid.to_dict(), "plan": plan.to_dict(), "plan_text": plan.describe(), "dry_run": True}
+    return slice_part_planned(*args, plan=plan, executor=executor, executor_info=executor_info,
+                              workers=scale.workers, scheduler=scale.scheduler, progress=progress, blend=opts.blend)
 
 
 def footprint_lower_bound(skel: Skeleton, grid: SliceGrid, probes: int = 256) -> np.ndarray | None:

@@ -25,6 +25,7 @@ from formats import format_for, writer_for
 from formats.printers import PRINTERS, Printer, PrintSettings, get_printer
 
 from .antialias import check_aa
+from .blend import require_traceable
 from .checks import fmt_num, integer, positive_number, vector
 from .errors import OptionError
 from .slicing import METHODS
@@ -326,6 +327,7 @@ def _plate_point(at, prn: Printer | None) -> tuple[float, float]:
 
 
 def _check_trace(t: TraceOptions) -> None:
+    require_traceable(t.blend)
     if t.method not in METHODS:
         raise OptionError(f"unknown method {t.method!r}; choose one of {', '.join(sorted(METHODS))}")
     integer(t.bucket, "--bucket", lo=0)

@@ -1,7 +1,8 @@
 """Writing renders: the image as PNG and the crossings as ``.npz``, atomically.
 
 The job of ``skelslice render``: :func:`run_render` checks both destinations
-before any work, renders (:func:`slicer.render.render`) and writes the files
+before any work, renders (:func:`slicer.render.render`, or
+:func:`slicer.render_parts.render_part` for a part) and writes the files
 through :mod:`slicer.atomic`.
 """
 from __future__ import annotations
@@ -16,7 +17,9 @@ from formats.base import zip_entry
 
 from .atomic import AtomicFile, check_destination
 from .errors import OutputError
+from .parts import Part
 from .render import RenderResult, render
+from .render_parts import render_part
 from .skeleton import Skeleton
 
 
@@ -50,7 +53,7 @@ def _write_npz(fh, arrays: dict) -> None:
                 np.lib.format.write_array(out, np.asanyarray(a), allow_pickle=False)
 
 
-def run_render(skel: Skeleton, out, *, roots_out=None, force: bool = False, transparent: bool = False,
+def run_render(skel: Skeleton | Part, out, *, roots_out=None, force: bool = False, transparent: bool = False,
                **options) -> dict:
     """Render ``skel`` to the PNG ``out`` (and the roots to ``roots_out``).
 
@@ -64,7 +67,8 @@ def run_render(skel: Skeleton, out, *, roots_out=None, force: bool = False, tran
         if roots_out.resolve() == out.resolve():
             raise OutputError(f"{roots_out}: the roots file cannot be the image file")
         check_destination(roots_out, force)
-    res = render(skel, keep_roots=roots_out is not None, **options)
+    draw = render_part if isinstance(skel, Part) else render      # a part: lattice and meshes
+    res = draw(skel, keep_roots=roots_out is not None, **options)
     save_png(res.image(transparent), out, force)
     if roots_out is not None:
         save_roots(res, roots_out, force)

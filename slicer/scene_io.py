@@ -1,4 +1,4 @@
-"""Scene files: the JSON scene format (version 1) and OBJ polylines.
+"""Scene files: the JSON scene format (versions 1 and 2) and OBJ polylines.
 
 Reading validates everything and guesses nothing: any problem raises
 :class:`~slicer.errors.SceneError` whose message names the file, the entry
@@ -42,6 +42,31 @@ JSON scene, version 1
   accept), booleans or strings where numbers are expected, floats where
   indices are expected, and an empty ``"segments"`` list are errors.
 
+JSON scene, version 2: meshes
+-----------------------------
+Version 2 is version 1 plus one key, ``"meshes"``: triangle meshes that the
+lattice fills or is trimmed by (see :mod:`slicer.parts`)::
+
+    {"skelslice": 2, "units": "mm", "nodes": [...], "segments": [...], "radii": [...],
+     "meshes": [{"path": "shell.stl", "role": "solid"},
+                {"path": "body.3mf", "role": "clip-inside",
+                 "transform": [[1, 0, 0, 10], [0, 1, 0, 0], [0, 0, 1, 0]]}]}
+
+* Every version 1 file reads as before; ``"meshes"`` in a version 1 file is an
+  error that names the version to use.
+* Each entry has ``"path"`` (required: an ``.stl``, ``.obj``, ``.ply`` or
+  ``.3mf`` file, relative to the scene file's folder), ``"role"`` (``"solid"``,
+  the default, ``"clip-inside"`` or ``"clip-outside"``), ``"transform"``
+  (optional: 3 or 4 rows of 4 numbers, acting on column vectors, ``p' = A p + t``;
+  the translation ``t`` is in the scene's units; a 4th row must be ``[0, 0, 0,
+  1]``) and ``"units"`` (the mesh file's unit, default the scene's; not allowed
+  for 3MF files, which carry their own). ``"metadata"`` and ``"x-"`` keys are
+  ignored; any other key is an error.
+* With ``"meshes"``, ``"nodes"`` and ``"segments"`` may be left out (or empty)
+  together: a mesh-only part. Clipping meshes need a lattice.
+* :func:`load_scene` returns the skeleton only and refuses a scene with
+  meshes; :func:`slicer.parts.load_part` reads both.
+
 OBJ polylines
 -------------
 * ``v x y z`` or ``v x y z radius`` (mm) and ``l i j k ...`` line elements:
@@ -78,6 +103,7 @@ import json
 import math
 import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -100,6 +126,10 @@ UNITS: dict[str, tuple[float, float]] = {
 
 _KEYS = ("skelslice", "units", "nodes", "segments", "radii", "segment_radii", "kernel")
 _KERNEL_KEYS = ("degree", "sigma")
+#: format versions read; version 2 adds "meshes"
+READ_VERSIONS = (1, 2)
+_MESH_KEYS = ("path", "role", "transform", "units")
+_MESH_ROLES = ("solid", "clip-inside", "clip-outside")
 _MAX_SHOWN = 60
 
 
@@ -153,8 +183,49 @@ def load_scene(path, radius: float | None = None) -> Skeleton:
             f"expected a .json scene, .obj polylines or a .3mf beam lattice", src)
     text = _read_text(src)
     if fmt == "json":
-        return _skeleton_from_json(_parse_json(text, src), src, radius)
+        skel, meshes = _scene_from_json(_parse_json(text, src), src, radius)
+        if meshes:
+            raise SceneError(f'the scene has {len(meshes)} mesh{"es" if len(meshes) > 1 else ""} ("meshes"); '
+                             f'load_scene reads the lattice only: read it with slicer.parts.load_part '
+                             f'(the command line does)', src)
+        return skel
     return _skeleton_from_obj(text, src, radius)
+
+
+@dataclass(frozen=True)
+class MeshEntry:
+    """One ``"meshes"`` entry of a version 2 scene, resolved.
+
+    Attributes
+    ----------
+    path : str
+        The mesh file (resolved against the scene's folder).
+    role : str
+    scale : float
+        mm per mesh-file unit (STL/OBJ/PLY; 3MF files use their own).
+    transform : (3, 4) float64 or None
+        In mm: ``p' = A p + t``.
+    """
+
+    path: str
+    role: str
+    scale: float
+    transform: np.ndarray | None
+
+
+def read_json_scene(path, radius: float | None = None) -> tuple[Skeleton | None, list[MeshEntry]]:
+    """Read a JSON scene of any supported version: its skeleton (None for a
+    mesh-only scene) and its mesh entries (read them with
+    :func:`slicer.parts.load_part`).
+
+    Raises
+    ------
+    SceneError
+    """
+    src = os.fsdecode(os.fspath(path))
+    if radius is not None:
+        _check_radius_argument(radius)
+    return _scene_from_json(_parse_json(_read_text(src), src), src, radius)
 
 
 def save_scene(skel: Skeleton, path) -> None:
@@ -349,7 +420,7 @@ def _unknown_keys_message(unknown: list[str], known) -> str:
     return ", ".join(parts)
 
 
-def _skeleton_from_json(data, src: str, radius: float | None) -> Skeleton:
+def _scene_from_json(data, src: str, radius: float | None) -> tuple[Skeleton | None, list[MeshEntry]]:
     if type(data) is not dict:
         raise SceneError(f"the top level must be a JSON object {{\"skelslice\": 1, ...}}, "
                          f"got {_kind(data)} {_show(data)}", src)
@@ -360,16 +431,22 @@ def _skeleton_from_json(data, src: str, radius: float | None) -> Skeleton:
     if type(version) is not int:
         raise SceneError(f'"skelslice" = {_show(version)} must be the integer format version '
                          f'{FORMAT_VERSION}', src)
-    if version != FORMAT_VERSION:
+    if version not in READ_VERSIONS:
         raise SceneError(f'"skelslice" = {version}: scene format version {version} is not supported '
-                         f'(skelslice {__version__} reads version {FORMAT_VERSION}); '
+                         f'(skelslice {__version__} reads versions {", ".join(map(str, READ_VERSIONS))}); '
                          f'upgrade skelslice', src)
-    unknown = [k for k in data if k not in _KEYS and k != "metadata" and not k.startswith("x-")]
+    keys = _KEYS + (("meshes",) if version >= 2 else ())
+    unknown = [k for k in data if k not in keys and k != "metadata" and not k.startswith("x-")]
+    if "meshes" in unknown:
+        raise SceneError('"meshes" needs scene format version 2: write "skelslice": 2 '
+                         '(version 1 files have no meshes)', src)
     if unknown:
         raise SceneError(f"unknown key{'s' if len(unknown) > 1 else ''} "
-                         f"{_unknown_keys_message(unknown, _KEYS + ('metadata',))}; "
+                         f"{_unknown_keys_message(unknown, keys + ('metadata',))}; "
                          f'extra data must go under "metadata" or keys starting with "x-"', src)
-    missing = [k for k in ("units", "nodes", "segments") if k not in data]
+    lattice_keys = [k for k in ("nodes", "segments") if k in data]
+    mesh_only = "meshes" in data and not lattice_keys
+    missing = [k for k in ("units",) + (() if mesh_only else ("nodes", "segments")) if k not in data]
     if missing:
         raise SceneError("missing key" + ("s " if len(missing) > 1 else " ")
                          + ", ".join(f'"{k}"' for k in missing), src)
@@ -378,6 +455,15 @@ def _skeleton_from_json(data, src: str, radius: float | None) -> Skeleton:
     if type(units) is not str or units not in UNITS:
         raise SceneError(f'"units" = {_show(units)} is not supported; use one of '
                          + ", ".join(f'"{u}"' for u in UNITS), src)
+    meshes = _mesh_entries(data["meshes"], units, src) if "meshes" in data else []
+    if mesh_only or ("meshes" in data and data.get("nodes") == [] and data.get("segments") == []):
+        for k in ("radii", "segment_radii"):
+            if k in data:
+                raise SceneError(f'"{k}" is given but the scene has no lattice ("nodes" and "segments" '
+                                 f'are {"empty" if lattice_keys else "absent"})', src)
+        if not meshes:
+            raise SceneError('the scene has neither a lattice nor a mesh ("meshes" is empty)', src)
+        return None, meshes
 
     nodes = _rows(data["nodes"], "nodes", 3, "node", "[x, y, z]", src)
     n = len(nodes)
@@ -442,7 +528,63 @@ def _skeleton_from_json(data, src: str, radius: float | None) -> Skeleton:
             raise SceneError(f"radii underflow to 0 when converted from {units} to mm", src)
     if radii_arr is None:
         radii_arr = np.full((m, 2), float(radius))
-    return Skeleton(nodes_arr, seg_arr, radii_arr, degree, sigma, source=src)
+    return Skeleton(nodes_arr, seg_arr, radii_arr, degree, sigma, source=src), meshes
+
+
+def _mesh_entries(value, units: str, src: str) -> list[MeshEntry]:
+    """The ``"meshes"`` entries of a version 2 scene, checked and resolved."""
+    out = []
+    folder = Path(src).parent
+    mul, div = UNITS[units]
+    for i, e in enumerate(_array(value, "meshes", 'objects {"path": ..., "role": ...}', src)):
+        where = f"meshes[{i}]"
+        if type(e) is not dict:
+            raise SceneError(f'{_is(where, e)}; a mesh entry is an object {{"path": "part.stl", "role": "solid"}}',
+                             src)
+        bad = [k for k in e if k not in _MESH_KEYS and k != "metadata" and not k.startswith("x-")]
+        if bad:
+            raise SceneError(f"{where}: unknown key{'s' if len(bad) > 1 else ''} "
+                             f"{_unknown_keys_message(bad, _MESH_KEYS)}; a mesh entry has "
+                             + ", ".join(f'"{k}"' for k in _MESH_KEYS), src)
+        if "path" not in e:
+            raise SceneError(f'{where}: missing key "path" (the mesh file)', src)
+        path = e["path"]
+        if type(path) is not str or not path.strip():
+            raise SceneError(f'{_is(where + ".path", path)}; it must be the name of a mesh file', src)
+        full = Path(path) if Path(path).is_absolute() else folder / path
+        suffix = full.suffix.lower()
+        if suffix not in (".stl", ".obj", ".ply", ".3mf"):
+            raise SceneError(f'{where}.path = {_show(path)}: unknown mesh file type {suffix or "(no suffix)"!r}; '
+                             f'use .stl, .obj, .ply or .3mf', src)
+        role = e.get("role", "solid")
+        if type(role) is not str or role not in _MESH_ROLES:
+            raise SceneError(f'{where}.role = {_show(role)} is not a mesh role; use one of '
+                             + ", ".join(f'"{r}"' for r in _MESH_ROLES), src)
+        scale = mul / div
+        if "units" in e:
+            u = e["units"]
+            if suffix == ".3mf":
+                raise SceneError(f'{where}.units: a 3MF file carries its own unit; remove "units"', src)
+            if type(u) is not str or u not in UNITS:
+                raise SceneError(f'{where}.units = {_show(u)} is not supported; use one of '
+                                 + ", ".join(f'"{x}"' for x in UNITS), src)
+            scale = UNITS[u][0] / UNITS[u][1]
+        transform = None
+        if "transform" in e:
+            rows = e["transform"]
+            if type(rows) is not list or len(rows) not in (3, 4):
+                raise SceneError(f'{where}.transform = {_show(rows)} must be 3 or 4 rows of 4 numbers '
+                                 f'([[a, b, c, tx], [d, e, f, ty], [g, h, i, tz]])', src)
+            m = np.array(_rows(rows, f"{where}.transform", 4, "row", "[a, b, c, t]", src), dtype=np.float64)
+            if m.shape[0] == 4 and not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
+                raise SceneError(f"{where}.transform: the 4th row must be [0, 0, 0, 1], got {_show(m[3].tolist())}",
+                                 src)
+            if not abs(np.linalg.det(m[:3, :3])) > 0:
+                raise SceneError(f"{where}.transform is singular (it flattens the mesh)", src)
+            transform = m[:3].copy()
+            transform[:, 3] *= mul / div          # translation: scene units to mm
+        out.append(MeshEntry(os.fspath(full), role, float(scale), transform))
+    return out
 
 
 # ----------------------------------------------------------------------------- OBJ
@@ -594,4 +736,5 @@ def _skeleton_from_obj(text: str, src: str, radius: float | None) -> Skeleton:
     return Skeleton(nodes, seg_arr, vr[seg_arr], source=src)
 
 
-__all__ = ["load_scene", "save_scene", "FORMAT_VERSION", "UNITS", "SUFFIXES"]
+__all__ = ["load_scene", "save_scene", "read_json_scene", "MeshEntry", "FORMAT_VERSION", "READ_VERSIONS", "UNITS",
+           "SUFFIXES"]

@@ -14,6 +14,7 @@ from typing import Iterator
 import numpy as np
 
 from ._kernels.launch import numba_threads
+from .blend import require_traceable
 from .buckets import Buckets, build_buckets, thread_order
 from .errors import GridError
 from .grid import SliceGrid, make_grid
@@ -103,41 +104,12 @@ class SliceResult:
             raise GridError("coverage needs spans: trace with spans=True (interval method)")
         g = self.grid
         K, h = g.layers, g.layer_height
-        npx = g.width * g.height
         if K == 0:
             return
         # layer-relative coordinates: voxel k covers [k, k + 1)
         u0 = (self.span_t0 - g.origin[2]) / h + 0.5
         u1 = (self.span_t1 - g.origin[2]) / h + 0.5
-        ka = np.clip(np.floor(u0).astype(np.int64), 0, K - 1)
-        kb = np.clip(np.floor(u1).astype(np.int64), 0, K - 1)
-        # partial contributions: the first and last layer of each span
-        same = ka == kb
-        part_k = np.concatenate([ka, kb[~same]])
-        part_pix = np.concatenate([self.span_pix, self.span_pix[~same]])
-        part_v = np.concatenate([np.where(same, u1 - u0, (ka + 1) - u0), (u1 - kb)[~same]])
-        order = np.argsort(part_k, kind="stable")
-        part_k, part_pix, part_v = part_k[order], part_pix[order], part_v[order]
-        pb = np.searchsorted(part_k, np.arange(K + 1))
-        # fully covered layers ka < k < kb: +1 from ka + 1, -1 from kb
-        full = ~same & (kb > ka + 1)
-        ev_k = np.concatenate([ka[full] + 1, kb[full]])
-        ev_pix = np.concatenate([self.span_pix[full], self.span_pix[full]])
-        ev_d = np.concatenate([np.ones(int(full.sum()), np.int32), -np.ones(int(full.sum()), np.int32)])
-        order = np.argsort(ev_k, kind="stable")
-        ev_k, ev_pix, ev_d = ev_k[order], ev_pix[order], ev_d[order]
-        eb = np.searchsorted(ev_k, np.arange(K + 1))
-        count = np.zeros(npx, np.int32)
-        for k in range(K):
-            s, e = eb[k], eb[k + 1]
-            if e > s:
-                np.add.at(count, ev_pix[s:e], ev_d[s:e])
-            cov = count.astype(np.float64)
-            s, e = pb[k], pb[k + 1]
-            if e > s:
-                np.add.at(cov, part_pix[s:e], part_v[s:e])
-            np.clip(cov, 0.0, 1.0, out=cov)
-            yield cov.reshape(g.height, g.width)
+        yield from coverage_layers(self.span_pix, u0, u1, K, g.height, g.width)
 
     def volume(self) -> np.ndarray:
         """The whole voxel volume, (layers, height, width) bool. For tests and
@@ -147,6 +119,53 @@ class SliceResult:
         for p, a, b in zip(self.pix, self.k0, self.k1):
             vol[a:b, p] = True
         return vol.reshape(g.layers, g.height, g.width)
+
+
+def coverage_layers(span_pix: np.ndarray, u0: np.ndarray, u1: np.ndarray, layers: int, height: int,
+                    width: int) -> Iterator[np.ndarray]:
+    """Per layer, the covered fraction of each voxel, from spans in layer units.
+
+    Parameters
+    ----------
+    span_pix : (s,) int64
+    u0, u1 : (s,) float64
+        Span ends in layer units: voxel k covers ``[k, k + 1)``.
+    layers, height, width : int
+
+    Yields
+    ------
+    (height, width) float64 in [0, 1], one layer at a time (memory O(spans) + one layer).
+    """
+    K, npx = layers, width * height
+    ka = np.clip(np.floor(u0).astype(np.int64), 0, K - 1)
+    kb = np.clip(np.floor(u1).astype(np.int64), 0, K - 1)
+    # partial contributions: the first and last layer of each span
+    same = ka == kb
+    part_k = np.concatenate([ka, kb[~same]])
+    part_pix = np.concatenate([span_pix, span_pix[~same]])
+    part_v = np.concatenate([np.where(same, u1 - u0, (ka + 1) - u0), (u1 - kb)[~same]])
+    order = np.argsort(part_k, kind="stable")
+    part_k, part_pix, part_v = part_k[order], part_pix[order], part_v[order]
+    pb = np.searchsorted(part_k, np.arange(K + 1))
+    # fully covered layers ka < k < kb: +1 from ka + 1, -1 from kb
+    full = ~same & (kb > ka + 1)
+    ev_k = np.concatenate([ka[full] + 1, kb[full]])
+    ev_pix = np.concatenate([span_pix[full], span_pix[full]])
+    ev_d = np.concatenate([np.ones(int(full.sum()), np.int32), -np.ones(int(full.sum()), np.int32)])
+    order = np.argsort(ev_k, kind="stable")
+    ev_k, ev_pix, ev_d = ev_k[order], ev_pix[order], ev_d[order]
+    eb = np.searchsorted(ev_k, np.arange(K + 1))
+    count = np.zeros(npx, np.int32)
+    for k in range(K):
+        s, e = eb[k], eb[k + 1]
+        if e > s:
+            np.add.at(count, ev_pix[s:e], ev_d[s:e])
+        cov = count.astype(np.float64)
+        s, e = pb[k], pb[k + 1]
+        if e > s:
+            np.add.at(cov, part_pix[s:e], part_v[s:e])
+        np.clip(cov, 0.0, 1.0, out=cov)
+        yield cov.reshape(height, width)
 
 
 def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int = 64,
@@ -365,7 +384,7 @@ def trim(result: SliceResult, margin: int = 1) -> SliceResult:
 def slice_skeleton(skel: Skeleton, pixel_size: float, pixel_size_y: float | None = None,
                    layer_height: float | None = None, bounds=None, method: str = "interval",
                    bucket: int = 64, threads: int | None = None, strict: bool = False,
-                   spans: bool = False, span_tol: float | None = None) -> SliceResult:
+                   spans: bool = False, span_tol: float | None = None, blend: str = "sum") -> SliceResult:
     """Slice a skeleton into voxel layers, every voxel centre classified exactly.
 
     Parameters
@@ -389,6 +408,9 @@ def slice_skeleton(skel: Skeleton, pixel_size: float, pixel_size_y: float | None
     spans, span_tol
         Real-valued inside spans per pixel column, ends to ``span_tol`` mm
         (default layer height / 64); interval method only. See :func:`trace`.
+    blend : {"sum", "union"}
+        How segment fields combine (:mod:`slicer.blend`); the tracer supports
+        ``"sum"`` and refuses ``"union"`` (OptionError) until its kernels do.
 
     Returns
     -------
@@ -401,6 +423,7 @@ def slice_skeleton(skel: Skeleton, pixel_size: float, pixel_size_y: float | None
     >>> r.grid.width, r.grid.layers
     (9, 21)
     """
+    require_traceable(blend)
     if skel.n_segments == 0:
         raise GridError("the scene has no segments: nothing to slice")
     grid = make_grid(skel.support_bounds(), pixel_size, pixel_size_y, layer_height, bounds)
@@ -409,4 +432,4 @@ def slice_skeleton(skel: Skeleton, pixel_size: float, pixel_size_y: float | None
     return res if bounds is not None else trim(res)
 
 
-__all__ = ["SliceResult", "slice_skeleton", "trace", "trim", "METHODS"]
+__all__ = ["SliceResult", "slice_skeleton", "trace", "trim", "coverage_layers", "METHODS"]

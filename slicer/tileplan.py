@@ -403,17 +403,22 @@ def plan_slice(skel: Skeleton, pixel_size: float, pixel_size_y: float | None = N
                spans: bool = False, span_tol: float | None = None, *, max_memory=None,
                executor_info=None, tile: int | None = None, sample: bool | None = None,
                layer_bytes_per_pixel: float | None = None,
-               process_bytes: int | None = None, slab: int | None = None) -> TilePlan:
+               process_bytes: int | None = None, slab: int | None = None,
+               grid: SliceGrid | None = None) -> TilePlan:
     """The plan :func:`slice_planned` would follow (grid checks included),
     without tracing more than the sample. Used by ``--dry-run``.
 
     ``layer_bytes_per_pixel`` defaults to :data:`BYTES_PER_LAYER_PIXEL`, or
-    :data:`BYTES_PER_COVERAGE_PIXEL` with spans (float coverage layers)."""
+    :data:`BYTES_PER_COVERAGE_PIXEL` with spans (float coverage layers).
+    ``grid``: trace this grid as it is (never trimmed by the tiles), instead
+    of the one made from the skeleton's supports and ``bounds``."""
     if layer_bytes_per_pixel is None:
         layer_bytes_per_pixel = BYTES_PER_COVERAGE_PIXEL if spans else BYTES_PER_LAYER_PIXEL
     if skel.n_segments == 0:
         raise GridError("the scene has no segments: nothing to slice")
-    grid = make_grid(skel.support_bounds(), pixel_size, pixel_size_y, layer_height, bounds)
+    trim_output = bounds is None and grid is None
+    if grid is None:
+        grid = make_grid(skel.support_bounds(), pixel_size, pixel_size_y, layer_height, bounds)
     opts = TraceOptions(method, bucket, threads, strict, spans, span_tol)
     workers = executor_info.workers if executor_info is not None and executor_info.kind != "serial" else 1
     procs = workers if executor_info is not None and executor_info.kind == "processes" else 0
@@ -421,7 +426,7 @@ def plan_slice(skel: Skeleton, pixel_size: float, pixel_size_y: float | None = N
             and executor_info.address.startswith(("tcp://127.", "inproc://")):
         procs = workers
     return plan_job(skel, grid, opts, parse_size(max_memory), workers=workers, pool_processes=procs,
-                    trim_output=bounds is None, sample=sample, tile=tile,
+                    trim_output=trim_output, sample=sample, tile=tile,
                     layer_bytes_per_pixel=layer_bytes_per_pixel, process_bytes=process_bytes, slab=slab)
 
 

@@ -19,7 +19,10 @@ from .slicing import SliceResult, trace
 
 @dataclass(frozen=True)
 class TraceOptions:
-    """Tracer settings shared by every tile (see :func:`slicer.slicing.trace`)."""
+    """Tracer settings shared by every tile (see :func:`slicer.slicing.trace`).
+
+    ``blend`` (:mod:`slicer.blend`) is checked by the job; the kernels trace ``sum``.
+    """
 
     method: str = "interval"
     bucket: int = 64
@@ -27,6 +30,7 @@ class TraceOptions:
     strict: bool = False
     spans: bool = False
     span_tol: float | None = None
+    blend: str = "sum"
 
     def trace_kwargs(self) -> dict:
         kw = dict(method=self.method, bucket=self.bucket, threads=self.threads, strict=self.strict)

@@ -152,16 +152,16 @@ def test_signal_while_writing_a_traced_result_leaves_no_output(tmp_path, sig):
 def test_sigterm_is_handled_only_while_a_command_runs(scene, tmp_path, monkeypatch):
     """The SIGTERM handler (a clean exit, like Ctrl-C) is in force inside the
     command and restored afterwards, so an embedding process keeps its own."""
-    import slicer.job
+    import slicer.commands.slice
 
-    real = slicer.job.run_slice
+    real = slicer.commands.slice.run_slice
     seen = []
 
     def spy(*a, **k):
         seen.append(signal.getsignal(signal.SIGTERM))
         return real(*a, **k)
 
-    monkeypatch.setattr(slicer.job, "run_slice", spy)
+    monkeypatch.setattr(slicer.commands.slice, "run_slice", spy)
     before = signal.getsignal(signal.SIGTERM)
     assert run("slice", scene, "-o", tmp_path / "o", "--pixel-size", "0.1", "-q").exit_code == 0
     assert len(seen) == 1 and seen[0] not in (signal.SIG_DFL, signal.SIG_IGN, None)

@@ -433,23 +433,37 @@ def reference_sections(skel: Skeleton, zs, edge: float, tol: float = 1e-5) -> li
     list of Section
         ``info.error_3d`` is the band's estimated distance to the surface.
     """
-    edge = _check_edge(edge)
-    lo, n = _xy_box(skel, edge)
     out = []
     for z in np.asarray(zs, dtype=np.float64).reshape(-1):
         t0 = time.perf_counter()
-        zlo = z - 0.5 * edge
-        verts, tris, info = march_box(skel, (lo[0], lo[1], zlo), edge, (n[0], n[1], 1), tol, open_z=True)
-        info.error_3d, ne = surface_error(skel, verts, tris)
-        info.evaluations += ne
-        tris = cap_band(verts, tris, (zlo, zlo + edge))
-        info.triangles = int(tris.shape[0])
-        cs = to_manifold(verts, tris).slice(float(z))
+        band, info = reference_band(skel, float(z), edge, tol)
+        cs = band.slice(float(z))
         rings = [np.asarray(r, dtype=np.float64) for r in cs.to_polygons()]
         info.seconds = time.perf_counter() - t0
         out.append(Section(float(z), rings_to_multipolygon(rings), info, rings))
     return out
 
 
-__all__ = ["reference_mesh", "reference_sections", "march_box", "cap_band", "surface_error",
+def reference_band(skel: Skeleton, z: float, edge: float, tol: float = 1e-5):
+    """The closed band of the meshed surface around height ``z`` (see :func:`reference_sections`).
+
+    Returns
+    -------
+    band : manifold3d.Manifold
+        Marching tetrahedra between grid planes ``z -+ edge/2``, capped there.
+    info : MeshInfo
+        ``error_3d`` is the band's estimated distance to the surface.
+    """
+    edge = _check_edge(edge)
+    lo, n = _xy_box(skel, edge)
+    zlo = z - 0.5 * edge
+    verts, tris, info = march_box(skel, (lo[0], lo[1], zlo), edge, (n[0], n[1], 1), tol, open_z=True)
+    info.error_3d, ne = surface_error(skel, verts, tris)
+    info.evaluations += ne
+    tris = cap_band(verts, tris, (zlo, zlo + edge))
+    info.triangles = int(tris.shape[0])
+    return to_manifold(verts, tris), info
+
+
+__all__ = ["reference_mesh", "reference_sections", "reference_band", "march_box", "cap_band", "surface_error",
            "to_manifold", "MeshInfo", "Section"]

@@ -48,7 +48,7 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
              layer_height=None, bounds=None, method: str = "interval", bucket: int = 64,
              threads=None, strict: bool = False, mesh_edge: float | None = None,
              layers_checked: int = 8, tol: float = 1e-3, max_hausdorff: float | None = None,
-             min_iou: float | None = None, progress=None) -> dict:
+             min_iou: float | None = None, blend: str = "sum", progress=None) -> dict:
     """Slice ``skel`` and compare sampled layers with the meshed reference.
 
     Parameters
@@ -67,6 +67,8 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
         Contour tolerance.
     max_hausdorff : float, optional, mm
     min_iou : float, optional
+    blend : {"sum", "union"}
+        Passed to the slicer (which traces ``sum`` only, for now).
 
     Returns
     -------
@@ -92,7 +94,8 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
         if bounds is None:
             bounds = sq
     t0 = time.perf_counter()
-    res = slice_skeleton(skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict)
+    res = slice_skeleton(skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict,
+                         blend=blend)
     t_slice = time.perf_counter() - t0
     g = res.grid
     px, py = g.pixel_size
@@ -124,6 +127,17 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
         ours_all.append(ours)
         if progress:
             progress(row)
+    settings = {"method": method, "bucket": bucket, "strict": strict, "tol": tol, "mesh_edge": edge,
+                "layers_checked": int(layers_checked), "max_hausdorff": max_hausdorff, "min_iou": min_iou}
+    timings = {"slice_s": t_slice, "reference_s": t_ref, "contours_s": t_contours, "metrics_s": t_metrics}
+    return assemble_report(rows, settings, g, timings, tol, max_hausdorff, min_iou, res, sections, ours_all)
+
+
+def assemble_report(rows: list[dict], settings: dict, grid, timings: dict, tol: float, max_hausdorff, min_iou,
+                    result, sections, ours) -> dict:
+    """The report of :func:`validate` from its per-layer rows: summary, checks, verdict."""
+    from .metrics import summarise
+
     summary = summarise(rows)
     if rows:
         summary["max_mesh_bound"] = max(r["mesh_bound"] for r in rows)
@@ -139,14 +153,9 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
     if min_iou is not None:
         checks["min_iou"] = all(r["iou"] >= min_iou for r in rows)
     return {
-        "settings": {"method": method, "bucket": bucket, "strict": strict, "tol": tol, "mesh_edge": edge,
-                     "layers_checked": int(layers_checked), "max_hausdorff": max_hausdorff,
-                     "min_iou": min_iou},
-        "grid": g.to_dict(), "layers": rows, "summary": summary, "checks": checks,
-        "passed": bool(rows) and all(checks.values()),
-        "timings": {"slice_s": t_slice, "reference_s": t_ref, "contours_s": t_contours,
-                    "metrics_s": t_metrics},
-        "_result": res, "_sections": sections, "_ours": ours_all,
+        "settings": settings, "grid": grid.to_dict(), "layers": rows, "summary": summary, "checks": checks,
+        "passed": bool(rows) and all(checks.values()), "timings": timings,
+        "_result": result, "_sections": sections, "_ours": ours,
     }
 
 
@@ -233,4 +242,4 @@ def write_report(report: dict, out, force: bool = False, images: int = 4) -> Pat
     return out
 
 
-__all__ = ["validate", "format_table", "write_report", "pick_layers", "overlay_image"]
+__all__ = ["validate", "assemble_report", "format_table", "write_report", "pick_layers", "overlay_image"]

@@ -12,6 +12,10 @@ import click
 
 from validation.bench import format_table as table1_table
 from validation.bench import table1
+from validation.bulge import bulge
+from validation.bulge import format_table as bulge_table
+from validation.parts_bench import format_table as parts_table
+from validation.parts_bench import run as parts_bench
 from validation.error_time import format_table as error_table
 from validation.error_time import label, plot, sweep
 from validation.machine import command_line
@@ -35,8 +39,20 @@ def _bench_table1(model, quick, repeat, threads):
     return res, None
 
 
+def _bench_bulge(model, quick, repeat, threads):
+    rows = bulge(rays=1000 if quick else 4000)
+    click.echo(bulge_table(rows, 12, 0.5))
+    return rows, None
+
+
+def _bench_parts(model, quick, repeat, threads):
+    res = parts_bench(scale=0.5 if quick else 1.0, threads=threads, repeat=repeat)
+    click.echo(parts_table(res))
+    return res, None
+
+
 #: benchmark name -> runner(model, quick, repeat, threads) -> (results, plotter or None)
-BENCHMARKS = {"error": _bench_error, "table1": _bench_table1}
+BENCHMARKS = {"error": _bench_error, "table1": _bench_table1, "bulge": _bench_bulge, "parts": _bench_parts}
 
 
 def _common(f):
@@ -92,6 +108,8 @@ def command(ctx, which, **options):
     \b
     skelslice bench error [--quick] [--json FILE] [--plot FILE.png]
     skelslice bench table1 [--model NAME] [--repeat N]
+    skelslice bench bulge [--quick]
+    skelslice bench parts [--quick] [--repeat N]
     """
     if ctx.invoked_subcommand is not None:
         if which is not None:
@@ -116,3 +134,17 @@ def error_command(**options):
 def table1_command(**options):
     """The paper's Table 1 protocol (validation/bench.py)."""
     run_benchmark("table1", **options)
+
+
+@command.command("bulge")
+@_common
+def bulge_command(**options):
+    """Node bulge of each blend at a 12-valent node (validation/bulge.py)."""
+    run_benchmark("bulge", **options)
+
+
+@command.command("parts")
+@_common
+def parts_command(**options):
+    """What mesh slicing and the booleans cost in a part's job (validation/parts_bench.py)."""
+    run_benchmark("parts", **options)

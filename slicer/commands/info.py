@@ -6,8 +6,7 @@ import json
 import click
 import numpy as np
 
-from ..scene_io import load_scene
-from .options import positive
+from .options import blend_option, load_part_from, part_options, positive
 
 #: an isolated segment shorter than this times its mean radius has no surface (docs/math.md §1.5)
 MIN_ISOLATED_LENGTH = 0.688
@@ -15,7 +14,7 @@ MIN_ISOLATED_LENGTH = 0.688
 _LISTED = 10
 
 
-def scene_stats(skel, pixel_size: float | None = None) -> dict:
+def scene_stats(skel, pixel_size: float | None = None, blend: str = "sum") -> dict:
     """Statistics and warnings for a skeleton, as a JSON-ready dict (lengths in mm).
 
     Parameters
@@ -23,6 +22,8 @@ def scene_stats(skel, pixel_size: float | None = None) -> dict:
     skel : Skeleton
     pixel_size : float, optional
         Pixel size in mm; enables the "thinner than a pixel" warning.
+    blend : {"sum", "union"}
+        With ``union`` a duplicate segment changes nothing (no warning).
 
     Returns
     -------
@@ -50,6 +51,7 @@ def scene_stats(skel, pixel_size: float | None = None) -> dict:
         "radius": _range(radii),
         "segment_length": _range(length),
         "pixel_size": pixel_size,
+        "blend": blend,
         "warnings": [],
     }
     warn = stats["warnings"]
@@ -80,11 +82,37 @@ def scene_stats(skel, pixel_size: float | None = None) -> dict:
     _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
     dup = np.ones(skel.n_segments, dtype=bool)
     dup[first] = False
+    if blend == "union":
+        dup[:] = False                    # the maximum of two equal fields is the field
     add("duplicate", dup,
         lambda k: f"{k} duplicate segment{_s(k)} (same two nodes as an earlier one): "
                   f"the field counts them twice")
     add("unused_nodes", degree == 0,
         lambda k: f"{k} node{_s(k)} not used by any segment", what="nodes")
+    return stats
+
+
+def part_stats(part, pixel_size: float | None = None, blend: str = "sum") -> dict:
+    """:func:`scene_stats` of a part: the lattice's statistics (if any) and its meshes.
+
+    Returns
+    -------
+    dict
+        The keys of :func:`scene_stats` (``nodes`` and ``segments`` 0 and no
+        lattice bounds for a mesh-only part), plus ``meshes`` (per mesh:
+        ``name``, ``role``, ``faces``, ``vertices``, ``volume`` mm^3,
+        ``area`` mm^2, ``bounds``), ``bounds.part`` and ``notes``.
+    """
+    if part.skeleton is not None:
+        stats = scene_stats(part.skeleton, pixel_size, blend)
+    else:
+        stats = {"nodes": 0, "segments": 0, "kernel": None, "bounds": {}, "radius": None, "segment_length": None,
+                 "pixel_size": pixel_size, "blend": blend, "warnings": []}
+    stats["meshes"] = [{"name": pm.mesh.name, "role": pm.role, "faces": pm.mesh.n_faces,
+                        "vertices": int(pm.mesh.vertices.shape[0]), "volume": pm.mesh.volume(),
+                        "area": pm.mesh.area(), "bounds": pm.mesh.bounds().tolist()} for pm in part.meshes]
+    stats["bounds"]["part"] = part.support_bounds().tolist()
+    stats["notes"] = list(part.notes)
     return stats
 
 
@@ -108,18 +136,29 @@ def _box(box) -> str:
 
 
 def format_stats(path: str, stats: dict) -> str:
-    """The text report of :func:`scene_stats`."""
+    """The text report of :func:`scene_stats` (or :func:`part_stats`)."""
     k, r, ln = stats["kernel"], stats["radius"], stats["segment_length"]
-    lines = [
-        f"scene:           {path}",
-        f"nodes:           {stats['nodes']}",
-        f"segments:        {stats['segments']}",
-        f"kernel:          degree {k['degree']}, sigma {_g(k['sigma'])}",
-        f"skeleton bounds: {_box(stats['bounds']['skeleton'])} mm",
-        f"support bounds:  {_box(stats['bounds']['support'])} mm",
-        f"radius:          {_g(r['min'])} .. {_g(r['max'])} mm (mean {_g(r['mean'])})",
-        f"segment length:  {_g(ln['min'])} .. {_g(ln['max'])} mm (mean {_g(ln['mean'])})",
-    ]
+    lines = [f"scene:           {path}"]
+    if stats["segments"]:
+        lines += [
+            f"nodes:           {stats['nodes']}",
+            f"segments:        {stats['segments']}",
+            f"kernel:          degree {k['degree']}, sigma {_g(k['sigma'])}"
+            + (f", blend {stats['blend']}" if stats.get("blend", "sum") != "sum" else ""),
+            f"skeleton bounds: {_box(stats['bounds']['skeleton'])} mm",
+            f"support bounds:  {_box(stats['bounds']['support'])} mm",
+            f"radius:          {_g(r['min'])} .. {_g(r['max'])} mm (mean {_g(r['mean'])})",
+            f"segment length:  {_g(ln['min'])} .. {_g(ln['max'])} mm (mean {_g(ln['mean'])})",
+        ]
+    else:
+        lines.append("lattice:         none (a mesh-only part)")
+    for m in stats.get("meshes", ()):
+        lines.append(f"mesh ({m['role']}):" + " " * max(1, 11 - len(m["role"])) + f"{m['name']}: {m['faces']:,} faces, "
+                     f"volume {_g(m['volume'])} mm^3, {_box(m['bounds'])} mm")
+    if stats.get("meshes"):
+        lines.append(f"part bounds:     {_box(stats['bounds']['part'])} mm")
+    for n in stats.get("notes", ()):
+        lines.append(f"note:            {n}")
     if stats["pixel_size"] is None:
         lines.append("pixel size:      not given (pass --pixel-size to check strut thickness)")
     else:
@@ -139,15 +178,20 @@ def format_stats(path: str, stats: dict) -> str:
 @click.option("--pixel-size", type=float, default=None, callback=positive, metavar="MM",
               help="Pixel size; warn about struts thinner than one pixel.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON object instead of text.")
-def command(scene: str, radius: float | None, pixel_size: float | None, as_json: bool) -> None:
-    """Print statistics of SCENE (.json scene or .obj polylines) and warnings.
+@part_options
+@blend_option
+def command(scene: str, radius: float | None, pixel_size: float | None, as_json: bool, solids, clips_inside,
+            clips_outside, repair, blend) -> None:
+    """Print statistics of SCENE (a .json scene, .obj polylines, a .3mf build, or an .stl / .ply mesh) and warnings.
 
     Warnings: struts thinner than a pixel (radius < pixel/2), isolated
     segments too short to have any surface, segments whose end balls nest,
-    duplicate segments and unused nodes.
+    duplicate segments and unused nodes. Meshes (of the scene, and
+    --solid/--clip-inside/--clip-outside) are listed with their role, faces,
+    volume and bounds; a mesh that is not a closed solid is an error.
     """
-    skel = load_scene(scene, radius=radius)
-    stats = scene_stats(skel, pixel_size)
+    part = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet=True)
+    stats = part_stats(part, pixel_size, blend)
     if as_json:
         click.echo(json.dumps({"scene": scene, **stats}, indent=2))
     else:

@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import click
 
+from ..blend import BLENDS
 from ..checks import positive_number
 from ..errors import OptionError
 from ..jobspec import OPTIONS, SliceJob
+from ..parts import Part, load_part
 from ..slicing import METHODS
 
 
@@ -35,7 +37,7 @@ grid_options = _stack(
                  help="Box to slice, mm (default: the whole surface plus one empty voxel of margin)."),
 )
 
-#: --method, --bucket, --threads, --strict
+#: --method, --bucket, --threads, --strict, --blend
 trace_options = _stack(
     click.option("--method", type=click.Choice(sorted(METHODS, key=METHODS.get)), default="interval",
                  show_default=True, help="Tracing method (sampling and segment are the paper's baselines)."),
@@ -44,6 +46,26 @@ trace_options = _stack(
     click.option("--threads", type=click.IntRange(min=1), default=None, help="Threads (default: all cores)."),
     click.option("--strict", is_flag=True,
                  help="Do not rely on per-primitive unimodality (Lipschitz bounds only)."),
+    click.option("--blend", type=click.Choice(BLENDS), default="sum", show_default=True,
+                 help="How the struts' fields combine: sum (the paper's smooth blending) or union (every strut "
+                      "keeps its designed radius; refused until the tracer supports it)."),
+)
+
+#: --blend alone (commands without the tracing options)
+blend_option = click.option("--blend", type=click.Choice(BLENDS), default="sum", show_default=True,
+                            help="How the struts' fields combine: sum (the paper's) or union (the maximum).")
+
+#: --solid, --clip-inside, --clip-outside, --repair: meshes beside the scene
+part_options = _stack(
+    click.option("--solid", "solids", multiple=True, type=click.Path(dir_okay=False), metavar="MESH",
+                 help="Also print this mesh (STL, OBJ or PLY in mm, or 3MF), united with the scene. Repeatable."),
+    click.option("--clip-inside", "clips_inside", multiple=True, type=click.Path(dir_okay=False), metavar="MESH",
+                 help="Keep the lattice only inside this mesh. Repeatable (the lattice is kept inside any)."),
+    click.option("--clip-outside", "clips_outside", multiple=True, type=click.Path(dir_okay=False), metavar="MESH",
+                 help="Keep the lattice only outside this mesh. Repeatable."),
+    click.option("--repair", is_flag=True,
+                 help="Repair meshes that only need re-orienting or dropping faces with a repeated corner "
+                      "(each change is reported); other defects stay errors."),
 )
 
 #: --printer, --at, --aa, --aa-z, --gamma, --exposure, --bottom-exposure, --bottom-layers
@@ -97,6 +119,24 @@ def positive(ctx, param, value):
         raise click.BadParameter(str(exc).replace("the value ", "", 1)) from None
 
 
+def load_part_from(scene: str, radius=None, solids=(), clips_inside=(), clips_outside=(), repair: bool = False,
+                   quiet: bool = False) -> Part:
+    """The part of a command's SCENE and mesh options (:func:`slicer.parts.load_part`);
+    the reader's notes (objects left out, repairs) go to stderr unless ``quiet``."""
+    meshes = ([("solid", p) for p in solids] + [("clip-inside", p) for p in clips_inside]
+              + [("clip-outside", p) for p in clips_outside])
+    part = load_part(scene, radius=radius, meshes=meshes, repair=repair)
+    if not quiet:
+        for note in part.notes:
+            click.echo(f"note: {note}", err=True)
+    return part
+
+
+def part_inputs(scene: str, options: dict) -> list[str]:
+    """SCENE and the mesh files of the part options (for refusing them as outputs)."""
+    return [scene, *options.get("solids", ()), *options.get("clips_inside", ()), *options.get("clips_outside", ())]
+
+
 def job_from(kwargs: dict, **extra) -> SliceJob:
     """The :class:`SliceJob` of a command's keyword arguments.
 
@@ -109,4 +149,5 @@ def job_from(kwargs: dict, **extra) -> SliceJob:
     return SliceJob.from_options(**opts)
 
 
-__all__ = ["grid_options", "trace_options", "print_options", "scale_options", "radius_option", "positive", "job_from"]
+__all__ = ["grid_options", "trace_options", "print_options", "scale_options", "radius_option", "blend_option",
+           "part_options", "positive", "job_from", "load_part_from", "part_inputs"]

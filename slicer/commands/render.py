@@ -5,8 +5,8 @@ import click
 
 from ..render import CAMERAS, VIEWS
 from ..render_output import run_render
-from ..scene_io import load_scene
-from .options import radius_option
+from ..blend import require_traceable
+from .options import blend_option, load_part_from, part_options, radius_option
 
 
 @click.command("render")
@@ -38,13 +38,17 @@ from .options import radius_option
               help="Screen bucket edge, pixels.")
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="Threads (default: all cores).")
 @radius_option
+@part_options
+@blend_option
 @click.option("--force", is_flag=True, help="Replace existing outputs.")
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing on success.")
 def command(scene, out, size, view, camera, fov, eye, target, opacity, max_opacity, opaque, tolerance,
-            roots_out, bisection, strict, transparent, bucket, threads, radius, force, quiet):
+            roots_out, bisection, strict, transparent, bucket, threads, radius, solids, clips_inside, clips_outside,
+            repair, blend, force, quiet):
     """Render SCENE to a PNG: every crossing of every ray, shaded and
-    composited front to back as semi-transparent layers."""
-    skel = load_scene(scene, radius=radius)
+    composited front to back as semi-transparent layers (a part's meshes too)."""
+    require_traceable(blend, "rendering")
+    skel = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet)
     st = run_render(skel, out, roots_out=roots_out, force=force, transparent=transparent, size=size,
                     view=view, camera=camera, fov=fov, eye=eye or None, target=target or None,
                     opacity=opacity, max_opacity=max_opacity, opaque=opaque, tolerance=tolerance,

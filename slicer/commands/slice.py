@@ -9,15 +9,16 @@ from formats.estimate import PrintEstimate
 from ..config import config_option
 from ..executors import executor_info
 from ..job import check_not_input, run_slice
-from ..scene_io import load_scene
 from ..tileplan import auto_budget, parse_size
 from .info import scene_stats
-from .options import grid_options, job_from, print_options, radius_option, scale_options, trace_options
+from .options import (grid_options, job_from, load_part_from, part_inputs, part_options, print_options, radius_option,
+                      scale_options, trace_options)
 
 
 @click.command("slice")
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(), help="Output (a folder for PNG stacks).")
+@part_options
 @grid_options
 @trace_options
 @click.option("--format", "fmt", type=str, default=None, help="Output format (default: from the output name; png).")
@@ -34,15 +35,21 @@ from .options import grid_options, job_from, print_options, radius_option, scale
 @click.option("--dry-run", is_flag=True, help="Print the grid, tile plan, memory and time estimates; write nothing.")
 @click.option("--verbose", "-v", is_flag=True, help="Print the tile plan before slicing (on stderr).")
 @config_option
-def command(scene, out, radius, quiet, dry_run, verbose, **options):
-    """Slice SCENE into layer images: every voxel centre classified exactly."""
-    check_not_input(out, scene)
+def command(scene, out, radius, quiet, dry_run, verbose, solids, clips_inside, clips_outside, repair, **options):
+    """Slice SCENE into layer images: every voxel centre classified exactly.
+
+    SCENE is a lattice (.json, .obj, .3mf), a part (a .json scene with meshes,
+    or a .3mf build with mesh objects and clipping) or a mesh (.stl, .ply);
+    --solid, --clip-inside and --clip-outside add meshes to it.
+    """
+    check_not_input(out, *part_inputs(scene, dict(solids=solids, clips_inside=clips_inside,
+                                                  clips_outside=clips_outside)))
     check_destination(out, options["force"])
     mm = options["max_memory"]
     budget = auto_budget() if mm == "auto" else parse_size(mm)
     executor_info(options["executor"], options["workers"], options["scheduler"])   # --scheduler without dask
     job = job_from(options, max_memory=budget, scene_name=str(scene))
-    skel = load_scene(scene, radius=radius)
+    skel = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet)
     report = (lambda text: click.echo(text, err=True)) if (verbose and not dry_run) else None
     summary = run_slice(skel, out, job, dry_run=dry_run, report=report)
     if dry_run:
@@ -63,7 +70,7 @@ def _print_dry_run(skel, scene, out, summary, job) -> None:
     g = plan["grid"]
     s = job.scale
     click.echo("dry run: nothing is written")
-    click.echo(f"scene:     {scene} ({skel.n_segments:,} segments)")
+    click.echo(f"scene:     {scene} ({skel.describe()})")
     click.echo(f"output:    {out} [{summary['format']}]")
     where = s.executor + (f" at {s.scheduler}" if s.scheduler else "") + (f", {s.workers} workers" if s.workers else "")
     click.echo(f"executor:  {where}")
@@ -71,5 +78,6 @@ def _print_dry_run(skel, scene, out, summary, job) -> None:
     if summary.get("estimate"):
         click.echo(f"estimate:  {PrintEstimate.from_dict(summary['estimate']).describe()} "
                    f"(the grid's layers, an upper bound; resin once sliced)")
-    for w in scene_stats(skel, g["pixel_size"][0])["warnings"]:
-        click.echo(f"warning:   {w['message']}")
+    if skel.skeleton is not None:
+        for w in scene_stats(skel.skeleton, g["pixel_size"][0], job.trace.blend)["warnings"]:
+            click.echo(f"warning:   {w['message']}")

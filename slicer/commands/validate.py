@@ -6,15 +6,17 @@ import sys
 
 import click
 
+from validation.parts import validate_part
 from validation.validate import format_table, validate, write_report
 
 from ..atomic import check_destination
-from ..scene_io import load_scene
-from .options import grid_options, radius_option, trace_options
+from ..blend import require_traceable
+from .options import grid_options, load_part_from, part_options, radius_option, trace_options
 
 
 @click.command("validate")
 @click.argument("scene", type=click.Path(dir_okay=False))
+@part_options
 @grid_options
 @click.option("--pixels", type=click.IntRange(min=2), default=512, show_default=True,
               help="Without --pixel-size: a PIXELS x PIXELS image over the model's support box.")
@@ -31,9 +33,11 @@ from .options import grid_options, radius_option, trace_options
               help="Write report.json and overlay PNGs to this folder (atomically).")
 @click.option("--force", is_flag=True, help="Replace an existing report folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON instead of a table.")
-def command(scene, pixel_size, pixels, pixel_size_y, layer_height, bounds, method, bucket, threads, strict, radius,
-            mesh_edge, layers_checked, contour_tol, max_hausdorff, min_iou, report_dir, force, as_json):
-    """Slice SCENE and compare layers with cross-sections of the meshed field.
+def command(scene, pixel_size, pixels, pixel_size_y, layer_height, bounds, method, bucket, threads, strict, blend,
+            radius, mesh_edge, layers_checked, contour_tol, max_hausdorff, min_iou, report_dir, force, as_json,
+            solids, clips_inside, clips_outside, repair):
+    """Slice SCENE and compare layers with cross-sections of the meshed field
+    (for a part: combined with its meshes by manifold3d booleans).
 
     Prints per layer: IoU and XOR area against the reference, contour
     Hausdorff distance (um and pixels), the reference mesh's own error bound
@@ -47,11 +51,13 @@ def command(scene, pixel_size, pixels, pixel_size_y, layer_height, bounds, metho
     """
     if report_dir is not None:
         check_destination(report_dir, force)   # before any work
-    skel = load_scene(scene, radius=radius)
-    rep = validate(skel, pixel_size=pixel_size, pixels=pixels, pixel_size_y=pixel_size_y, layer_height=layer_height,
-                   bounds=bounds or None, method=method, bucket=bucket, threads=threads, strict=strict,
-                   mesh_edge=mesh_edge, layers_checked=layers_checked, tol=contour_tol,
-                   max_hausdorff=max_hausdorff, min_iou=min_iou)
+    require_traceable(blend)
+    part = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet=as_json)
+    run = validate_part if part.has_meshes else validate
+    rep = run(part if part.has_meshes else part.skeleton, pixel_size=pixel_size, pixels=pixels,
+              pixel_size_y=pixel_size_y, layer_height=layer_height, bounds=bounds or None, method=method,
+              bucket=bucket, threads=threads, strict=strict, mesh_edge=mesh_edge, layers_checked=layers_checked,
+              tol=contour_tol, max_hausdorff=max_hausdorff, min_iou=min_iou, blend=blend)
     rep["scene"] = str(scene)
     if report_dir is not None:
         write_report(rep, report_dir, force)

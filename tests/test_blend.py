@@ -1,0 +1,120 @@
+"""Blend operators: the union field at points, the refusal until the tracer has it, the node bulge.
+
+The tests of the tracer's union blend are ``xfail(strict=True)``: they fail
+today because ``slice_skeleton(..., blend="union")`` is refused (OptionError),
+and turn red the day the kernels trace the union and someone forgets to
+enable them. What the kernels must do: on each piece of a ray, the union's
+interval is ``[max_i lo_i, max_i hi_i]`` of the per-segment intervals (max of
+the lows, max of the highs), and the point field is ``max_i f_i``.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from slicer.cli import main
+from slicer.errors import OptionError
+from slicer.field import evaluate
+from slicer.skeleton import Skeleton
+from slicer.slicing import slice_skeleton
+from validation.bulge import bulge, node
+
+RNG = np.random.default_rng(7)
+NODE = node(12, 0.5, 3.0)
+
+
+def _points(n, box=3.5):
+    return RNG.uniform(-box, box, size=(n, 3))
+
+
+def test_union_of_one_strut_is_its_field():
+    s = Skeleton([[0, 0, 0], [1, 2, 3]], [[0, 1]], [[0.4, 0.7]])
+    p = _points(5000, 3.0)
+    fs, gs = evaluate(s, p, gradient=True)
+    fu, gu = evaluate(s, p, gradient=True, blend="union")
+    assert np.array_equal(fs, fu) and np.allclose(gs, gu, rtol=0, atol=0)
+
+
+def test_union_is_the_largest_strut_field():
+    p = _points(4000)
+    per = np.stack([evaluate(Skeleton(NODE.nodes, NODE.segments[i:i + 1], NODE.radii[i:i + 1]), p)[0]
+                    for i in range(NODE.n_segments)])
+    fu = evaluate(NODE, p, blend="union")[0]
+    fs = evaluate(NODE, p)[0]
+    assert np.array_equal(fu, per.max(axis=0))
+    assert np.allclose(fs, per.sum(axis=0), rtol=1e-12, atol=1e-15)
+    assert np.all(fu <= fs) and np.any(fs >= 1) and np.any((fs >= 1) & (fu < 1))   # the sum bulges
+    g = evaluate(NODE, p, gradient=True, blend="union")[1]
+    best = per.argmax(axis=0)
+    k = np.flatnonzero(per.max(axis=0) > 0)[:50]
+    for q in k:
+        one = Skeleton(NODE.nodes, NODE.segments[best[q]:best[q] + 1], NODE.radii[best[q]:best[q] + 1])
+        assert np.allclose(g[q], evaluate(one, p[q:q + 1], gradient=True)[1][0])
+
+
+def test_unknown_blend_refused():
+    with pytest.raises(OptionError, match="unknown --blend 'smooth'; choose one of sum, union"):
+        evaluate(NODE, [[0, 0, 0]], blend="smooth")
+
+
+def test_tracer_refuses_union_naming_what_is_missing():
+    with pytest.raises(OptionError) as e:
+        slice_skeleton(NODE, 0.1, blend="union")
+    msg = str(e.value)
+    assert "union inclusion" in msg and "max of the lows, max of the highs" in msg and "--blend sum" in msg
+
+
+@pytest.mark.parametrize("cmd", [["slice", "-o", "OUT", "--pixel-size", "0.1"], ["render", "-o", "OUT.png"],
+                                 ["validate", "--pixel-size", "0.1"]])
+def test_commands_refuse_union(tmp_path, cmd):
+    scene = tmp_path / "s.obj"
+    scene.write_text("v 0 0 0 0.5\nv 0 0 3 0.5\nl 1 2\n")
+    args = [a.replace("OUT", str(tmp_path / "out")) for a in cmd]
+    r = CliRunner().invoke(main, [args[0], str(scene), *args[1:], "--blend", "union"])
+    assert r.exit_code == 2 and "union inclusion" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "out").exists() and not (tmp_path / "out.png").exists()
+
+
+def test_info_with_union_drops_the_duplicate_warning(tmp_path):
+    scene = tmp_path / "d.obj"
+    scene.write_text("v 0 0 0 0.5\nv 0 0 3 0.5\nl 1 2\nl 2 1\n")
+    r = CliRunner().invoke(main, ["info", str(scene)])
+    assert "duplicate segment" in r.output
+    r = CliRunner().invoke(main, ["info", str(scene), "--blend", "union"])
+    assert r.exit_code == 0 and "duplicate" not in r.output and "blend union" in r.output
+
+
+def test_node_bulge():
+    rows = {r["blend"]: r for r in bulge(12, 0.5, 5.0, rays=600)}
+    assert rows["sum"]["bulge_mm"] > 0.1 * 0.5 and rows["sum"]["radius_near_node_mm"] > 0.55
+    assert rows["union"]["bulge_mm"] < 1e-6
+    assert rows["union"]["radius_near_node_mm"] == pytest.approx(0.5, rel=1e-3)
+
+
+# ----------------------------------------------------------------------------- the tracer's union (not yet)
+@pytest.mark.xfail(strict=True, raises=OptionError,
+                   reason="the tracer's kernels do not trace the union blend yet (slice_skeleton refuses it)")
+def test_tracer_union_of_one_strut_equals_sum():
+    s = Skeleton([[0, 0, 0], [0.3, 0.2, 4.0]], [[0, 1]], [[0.6, 0.4]])
+    a = slice_skeleton(s, 0.07, blend="union")
+    b = slice_skeleton(s, 0.07)
+    assert a.grid == b.grid and np.array_equal(a.volume(), b.volume())
+
+
+@pytest.mark.xfail(strict=True, raises=OptionError,
+                   reason="the tracer's kernels do not trace the union blend yet (slice_skeleton refuses it)")
+def test_tracer_union_at_a_node_is_the_union_of_the_struts():
+    """Every voxel of the union blend is inside exactly when some strut's own field is >= 1
+    (centres within 1e-9 of a strut's surface are left out)."""
+    bounds = (-3.5, -3.5, -3.5, 3.5, 3.5, 3.5)
+    res = slice_skeleton(NODE, 0.1, bounds=bounds, blend="union")
+    g = res.grid
+    z, y, x = np.meshgrid(g.centres_z(), g.centres_y(), g.centres_x(), indexing="ij")
+    p = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+    per = np.stack([evaluate(Skeleton(NODE.nodes, NODE.segments[i:i + 1], NODE.radii[i:i + 1]), p)[0]
+                    for i in range(NODE.n_segments)])
+    want = (per >= 1.0).any(axis=0)
+    sure = np.all(np.abs(per - 1.0) > 1e-9, axis=0)
+    got = res.volume().reshape(-1)
+    assert np.array_equal(got[sure], want[sure])
