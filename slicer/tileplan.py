@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import re
 from dataclasses import dataclass
 
 import numpy as np
 
 from ._kernels.launch import cores
+from .field import support_boxes
 from .errors import GridError
 from .grid import SliceGrid, make_grid
 from .skeleton import Skeleton
@@ -96,8 +98,6 @@ def format_size(n: float) -> str:
 
 def auto_budget() -> int | None:
     """Half of the machine's physical memory, bytes (None where unknown)."""
-    import os
-
     try:
         return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2)
     except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
@@ -108,8 +108,6 @@ def current_rss() -> int:
     """Resident memory of this process now, bytes (0 where unknown)."""
     try:
         with open("/proc/self/statm") as fh:
-            import os
-
             return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     except (OSError, ValueError, IndexError):  # pragma: no cover - not Linux
         return 0
@@ -242,8 +240,6 @@ def sample_runs(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, boxes=None,
     -------
     runs_per_column, seconds_per_column, fill : float
     """
-    from .field import support_boxes
-
     lo, hi = boxes if boxes is not None else support_boxes(skel)
     e = max(1, min(edge, grid.width, grid.height))
     runs = cols = inside = 0
@@ -308,8 +304,6 @@ def plan_job(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, budget: int | 
     GridError
         Even one layer per slab does not fit the budget.
     """
-    from .field import support_boxes
-
     W, H, K = grid.width, grid.height, grid.layers
     B = opts.bucket if opts.bucket and opts.bucket > 0 else 64
     serial = workers <= 1
