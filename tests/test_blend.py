@@ -66,6 +66,7 @@ def test_tracer_refuses_union_with_segment_tracing():
 
 @pytest.mark.parametrize("cmd, what", [
     (["render", "-o", "OUT.png"], "rendering"),
+    (["validate", "--pixel-size", "0.1"], "validate"),
     (["slice", "-o", "OUT.svg", "--pixel-size", "0.1"], "svg format"),
     (["slice", "-o", "OUT.png", "--pixel-size", "0.1", "--contours", "OUT.geojson"], "--contours"),
     (["slice", "-o", "OUT.png", "--pixel-size", "0.1", "--method", "segment"], "--method segment"),

@@ -68,7 +68,8 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
     max_hausdorff : float, optional, mm
     min_iou : float, optional
     blend : {"sum", "union"}
-        Passed to the slicer (which traces ``sum`` only, for now).
+        Passed to the slicer. The reference and the contour metrics are those of the
+        summed field, so ``skelslice validate`` refuses ``union``.
 
     Returns
     -------

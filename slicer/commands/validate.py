@@ -10,7 +10,7 @@ from validation.parts import validate_part
 from validation.validate import format_table, validate, write_report
 
 from ..atomic import check_destination
-from ..blend import require_traceable
+from ..blend import require_sum
 from .options import grid_options, load_part_from, part_options, radius_option, trace_options
 
 
@@ -51,7 +51,7 @@ def command(scene, pixel_size, pixels, pixel_size_y, layer_height, bounds, metho
     """
     if report_dir is not None:
         check_destination(report_dir, force)   # before any work
-    require_traceable(blend)
+    require_sum(blend, "validate (its reference mesh and contour metrics are those of the summed field)")
     part = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet=as_json)
     run = validate_part if part.has_meshes else validate
     rep = run(part if part.has_meshes else part.skeleton, pixel_size=pixel_size, pixels=pixels,
