@@ -21,7 +21,7 @@ import numpy as np
 
 from ._kernels.launch import cores
 from .field import support_boxes
-from .errors import GridError
+from .errors import GridError, OptionError
 from .grid import SliceGrid, make_grid
 from .skeleton import Skeleton
 from .slicing import trace
@@ -77,13 +77,13 @@ def parse_size(text) -> int | None:
             return None
         m = re.fullmatch(r"([0-9]*\.?[0-9]+(?:e[+-]?[0-9]+)?)\s*([a-z]*)", s)
         if not m or m.group(2) not in _UNITS:
-            raise GridError(f"--max-memory: cannot read {text!r}; use e.g. 2GB, 1.5GiB, 800MB or none")
+            raise OptionError(f"--max-memory: cannot read {text!r}; use e.g. 2GB, 1.5GiB, 800MB or none")
         value, unit = float(m.group(1)), m.group(2)
     n = value * _UNITS[unit]
     if not math.isfinite(n) or n <= 0:
         if n == 0:
             return None
-        raise GridError(f"--max-memory must be a positive size, got {text!r}")
+        raise OptionError(f"--max-memory must be a positive size, got {text!r}")
     return int(n)
 
 
@@ -317,7 +317,7 @@ def plan_job(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, budget: int | 
     else:
         T = int(tile)
         if T < 1:
-            raise GridError(f"tile must be >= 1 px, got {tile}")
+            raise OptionError(f"--tile must be >= 1 px, got {tile}")
         T = -(-T // B) * B if opts.bucket and T > B else T
     upper = float(math.ceil(K / 2))
     seconds = None
@@ -353,7 +353,7 @@ def plan_job(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, budget: int | 
     L = K
     if slab is not None:
         if int(slab) < 1:
-            raise GridError(f"slab must be >= 1 layer, got {slab}")
+            raise OptionError(f"--slab must be >= 1 layer, got {slab}")
         L = min(int(slab), max(K, 1))
         if budget is not None and estimate(rpc, L)["total"] > budget:
             raise GridError(f"--max-memory {format_size(budget)} is too small for slabs of {L} layers: "
