@@ -17,7 +17,9 @@ from slicer.errors import OptionError
 from slicer.field import evaluate
 from slicer.skeleton import Skeleton
 from slicer.slicing import slice_skeleton
+import validation.union_validate as uv
 from validation.bulge import bulge, node
+from validation.union_validate import validate_union
 
 RNG = np.random.default_rng(7)
 NODE = node(12, 0.5, 3.0)
@@ -66,7 +68,6 @@ def test_tracer_refuses_union_with_segment_tracing():
 
 @pytest.mark.parametrize("cmd, what", [
     (["render", "-o", "OUT.png"], "rendering"),
-    (["validate", "--pixel-size", "0.1"], "validate"),
     (["slice", "-o", "OUT.svg", "--pixel-size", "0.1"], "svg format"),
     (["slice", "-o", "OUT.png", "--pixel-size", "0.1", "--contours", "OUT.geojson"], "--contours"),
     (["slice", "-o", "OUT.png", "--pixel-size", "0.1", "--method", "segment"], "--method segment"),
@@ -129,3 +130,22 @@ def test_tracer_union_at_a_node_is_the_union_of_the_struts():
     want = (per >= 1.0).any(axis=0)
     got = res.volume().reshape(-1)
     assert np.array_equal(got, want) and want.sum() > 1000
+
+
+def test_validate_union_against_the_manifold_union_of_the_struts(tmp_path, monkeypatch):
+    """validate --blend union passes on a node; traced with the sum instead, the
+    same report fails (the bulge is outside the union of the struts)."""
+    sk = node(12, 0.5, 2.0)
+    rep = validate_union(sk, pixel_size=0.08, layers_checked=3)
+    assert rep["passed"] and rep["layers"] and all(r["pixel_mismatch_unexplained"] == 0 for r in rep["layers"])
+    real = uv.slice_skeleton
+    monkeypatch.setattr(uv, "slice_skeleton", lambda *a, **k: real(*a, **{**k, "blend": "sum"}))
+    bad = validate_union(sk, pixel_size=0.08, layers_checked=3)
+    assert not bad["passed"] and not bad["checks"]["contours_match_raster"]
+    monkeypatch.undo()
+    scene = tmp_path / "n.json"
+    sk.save(scene)
+    r = CliRunner().invoke(main, ["validate", str(scene), "--pixel-size", "0.1", "--layers-checked", "2",
+                                  "--blend", "union"])
+    assert r.exit_code == 0, r.output
+    assert "[pass] contours_match_raster" in r.output
