@@ -35,10 +35,9 @@ from slicer.field import evaluate
 from slicer.skeleton import Skeleton
 from slicer.slicing import slice_skeleton, trace
 
-from .bench import square_bounds
 from .metrics import contour_error_bound, hausdorff, polygon_rings, rasterize_rings
 from .reference_mesh import Section, reference_band
-from .validate import assemble_report, pick_layers
+from .validate import assemble_report, default_pitch, pick_layers
 
 
 def strut(skel: Skeleton, i: int) -> Skeleton:
@@ -163,12 +162,7 @@ def validate_union(skel: Skeleton, *, pixel_size=None, pixels: int = 512, pixel_
                    progress=None) -> dict:
     """:func:`validation.validate.validate` for ``blend="union"`` (module docstring); same report layout."""
     tol = positive_number(tol, "contour tolerance", GridError)
-    if pixel_size is None:
-        if int(pixels) < 2:
-            raise GridError(f"pixels must be >= 2, got {pixels}")
-        sq, pixel_size = square_bounds(skel, int(pixels))
-        if bounds is None:
-            bounds = sq
+    pixel_size, bounds = default_pitch(skel, pixel_size, pixels, bounds)
     t0 = time.perf_counter()
     res = slice_skeleton(skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict,
                          blend="union")
