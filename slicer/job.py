@@ -106,6 +106,8 @@ def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: boo
     res = traced
     opts = job.trace_options(resolved)
     meta = {"generator": f"skelslice {__version__}", "method": opts.method, "bucket": res.stats["bucket"]}
+    if opts.blend != "sum":
+        meta["blend"] = opts.blend
     if out_opts.scene_name:
         meta["scene"] = out_opts.scene_name
     written: dict = {}
