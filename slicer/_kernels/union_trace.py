@@ -268,6 +268,75 @@ def settle_gap(cur, te, fe, zlo, zhi, span_tol):
 
 
 @kernel
+def split_piece(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, p, mono, deep):
+    """Split the ambiguous piece in stack slot ``p`` (see :func:`walk_strut`);
+    returns the new stack size.
+
+    A piece holding centres is split at one (:func:`centre_split`), which is
+    evaluated and pushed as a classified centre between the two halves (the
+    right half keeps slot ``p``); a centre-free piece (spans) at
+    :func:`gap_split`.
+    """
+    z0, h, span_tol, inv_s2, norm = fp[0], fp[1], fp[4], fp[6], fp[7]
+    m = ip[1]
+    px, py = cur[W_PX], cur[W_PY]
+    te, fe, de = st[p, 0], st[p, 1], st[p, 2]
+    q0 = sti[p, 1]
+    q1 = sti[p, 2]
+    if q1 < q0:
+        ts = gap_split(cur[W_T], cur[W_F], cur[W_D], te, fe, de, mono, deep, span_tol)
+        fm, dm = strut_value(seg, g, hrec, r, px, py, ts, m, inv_s2, norm, scratch)
+        cnt[C_EV] += 1
+        push_piece(st, sti, p + 1, ts, fm, dm, q0, q1)
+        return p + 2
+    km = centre_split(q0, q1, cur[W_T], cur[W_F], cur[W_D], te, fe, de, z0, h, mono, deep)
+    zm = z0 + km * h
+    fm, dm = strut_value(seg, g, hrec, r, px, py, zm, m, inv_s2, norm, scratch)
+    cnt[C_EV] += 1
+    sti[p, 1] = km + 1
+    sti[p + 1, 0] = 1
+    sti[p + 1, 1] = km
+    sti[p + 1, 2] = 1 if fm >= 1.0 else 0
+    push_piece(st, sti, p + 2, zm, fm, dm, q0, km - 1)
+    return p + 3
+
+
+@kernel
+def place_crossing(cur, te, fe, de, xs, cnt):
+    """One crossing (an odd number) in ``(cur t, te)``, a piece whose ends differ
+    in class: at the Hermite estimate (the middle if it falls outside)."""
+    tr = hermite_root(cur[W_T], te, cur[W_F] - 1.0, fe - 1.0, cur[W_D], de)
+    if not (tr > cur[W_T] and tr < te):
+        tr = 0.5 * (cur[W_T] + te)
+    return add_crossing(xs, cnt, tr)
+
+
+@kernel
+def start_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt):
+    """Push the strut's pieces ``[t_in, t*]`` and ``[t*, t_out]`` (one piece when
+    ``t*`` is not inside) and set the current point to ``t_in`` (f = f' = 0);
+    returns the stack size."""
+    z0, h, inv_s2, norm = fp[0], fp[1], fp[6], fp[7]
+    K, m = ip[0], ip[1]
+    tin, tout, tst = hrec[r, H_TIN], hrec[r, H_TOUT], hrec[r, H_TSTAR]
+    kin = first_centre(tin, z0, h, K)
+    kout = first_centre(tout, z0, h, K) - 1
+    push_piece(st, sti, 0, tout, 0.0, 0.0, kin, kout)
+    sp = 1
+    if tst > tin and tst < tout:
+        fs, ds = strut_value(seg, g, hrec, r, cur[W_PX], cur[W_PY], tst, m, inv_s2, norm, scratch)
+        cnt[C_EV] += 1
+        ks = first_centre(tst, z0, h, K)
+        sti[0, 1] = ks
+        push_piece(st, sti, 1, tst, fs, ds, kin, ks - 1)
+        sp = 2
+    cur[W_T] = tin
+    cur[W_F] = 0.0
+    cur[W_D] = 0.0
+    return sp
+
+
+@kernel
 def walk_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, runs, xs):
     """Classify the centres of one strut's support on a ray (module docstring).
 
@@ -295,24 +364,8 @@ def walk_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, runs, xs):
         False when a buffer or the stack is full.
     """
     z0, h, zlo, zhi, span_tol = fp[0], fp[1], fp[2], fp[3], fp[4]
-    inv_s2, norm = fp[6], fp[7]
-    K, m, strict, spans = ip[0], ip[1], ip[2] != 0, ip[3] != 0
-    px, py = cur[W_PX], cur[W_PY]
-    tin, tout, tst = hrec[r, H_TIN], hrec[r, H_TOUT], hrec[r, H_TSTAR]
-    kin = first_centre(tin, z0, h, K)
-    kout = first_centre(tout, z0, h, K) - 1
-    push_piece(st, sti, 0, tout, 0.0, 0.0, kin, kout)
-    sp = 1
-    if tst > tin and tst < tout:
-        fs, ds = strut_value(seg, g, hrec, r, px, py, tst, m, inv_s2, norm, scratch)
-        cnt[C_EV] += 1
-        ks = first_centre(tst, z0, h, K)
-        sti[0, 1] = ks
-        push_piece(st, sti, 1, tst, fs, ds, kin, ks - 1)
-        sp = 2
-    cur[W_T] = tin
-    cur[W_F] = 0.0
-    cur[W_D] = 0.0
+    strict, spans = ip[2] != 0, ip[3] != 0
+    sp = start_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt)
     inside = False
     while sp > 0:
         sp -= 1
@@ -327,23 +380,12 @@ def walk_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, runs, xs):
         if q1 >= q0 or spans:
             lo, hi, mono = strut_bounds(hrec, r, cur[W_T], te, cur[W_F], cur[W_D], fe, de, strict)
             pad = PAD * (1.0 + abs(hi))
-            deep = sp >= DEEP
             if lo > 1.0 + pad:
                 if not emit(runs, cnt, q0, q1):
                     return False
-            elif hi < 1.0 - pad:
+            elif hi < 1.0 - pad or (q1 < q0 and settle_gap(cur, te, fe, zlo, zhi, span_tol)):
                 pass
-            elif q1 < q0:
-                if not settle_gap(cur, te, fe, zlo, zhi, span_tol):
-                    if sp + 2 > MAX_STACK:
-                        return False
-                    ts = gap_split(cur[W_T], cur[W_F], cur[W_D], te, fe, de, mono, deep, span_tol)
-                    fm, dm = strut_value(seg, g, hrec, r, px, py, ts, m, inv_s2, norm, scratch)
-                    cnt[C_EV] += 1
-                    push_piece(st, sti, p + 1, ts, fm, dm, q0, q1)
-                    sp = p + 2
-                    continue
-            elif z0 + q0 * h == cur[W_T]:
+            elif q1 >= q0 and z0 + q0 * h == cur[W_T]:
                 # the first centre sits on the left end: its value is known
                 if cur[W_F] >= 1.0 and not emit(runs, cnt, q0, q0):
                     return False
@@ -353,23 +395,10 @@ def walk_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, runs, xs):
             else:
                 if sp + 3 > MAX_STACK:
                     return False
-                km = centre_split(q0, q1, cur[W_T], cur[W_F], cur[W_D], te, fe, de, z0, h, mono, deep)
-                zm = z0 + km * h
-                fm, dm = strut_value(seg, g, hrec, r, px, py, zm, m, inv_s2, norm, scratch)
-                cnt[C_EV] += 1
-                sti[p, 1] = km + 1          # the right part keeps slot p
-                sti[p + 1, 0] = 1
-                sti[p + 1, 1] = km
-                sti[p + 1, 2] = 1 if fm >= 1.0 else 0
-                push_piece(st, sti, p + 2, zm, fm, dm, q0, km - 1)
-                sp = p + 3
+                sp = split_piece(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, p, mono, sp >= DEEP)
                 continue
         if spans and (fe >= 1.0) != inside:
-            # one crossing (an odd number) in (t, te), a piece of known ends: place it
-            tr = hermite_root(cur[W_T], te, cur[W_F] - 1.0, fe - 1.0, cur[W_D], de)
-            if not (tr > cur[W_T] and tr < te):
-                tr = 0.5 * (cur[W_T] + te)
-            if not add_crossing(xs, cnt, tr):
+            if not place_crossing(cur, te, fe, de, xs, cnt):
                 return False
             inside = not inside
         cur[W_T] = te
