@@ -15,7 +15,7 @@ from slicer import Skeleton
 from slicer.field import evaluate
 from slicer.parts import Part, PartMesh
 from slicer.meshes import make_mesh
-from slicer.part_slicing import slice_part
+from slicer.part_slicing import slice_part, slice_part_planned
 from test_cli_slice import run
 from validation.bulge import node
 
@@ -128,6 +128,9 @@ def test_part_with_a_mesh_traces_the_union():
     onface = np.any(np.abs(np.abs(P - (0, 0, -2.5)) - 0.5) < 1e-9, axis=1)
     got = res.volume().reshape(-1)
     assert np.array_equal(got[~onface], (lattice | inbox)[~onface])
+    for kw in ({"tile": 16}, {"tile": 24, "executor": "threads", "workers": 2}):
+        planned = slice_part_planned(part, 0.1, bounds=bounds, blend="union", progress=False, **kw)
+        assert np.array_equal(planned.volume(), res.volume()), kw
 
 
 def test_info_reports_the_blend(elbow):
