@@ -71,9 +71,10 @@ def require_traceable(blend, what: str = "slicing", method: str | None = None) -
     return b
 
 
-def require_sum(blend, what: str) -> str:
+def require_sum(blend, what: str, hint: str | None = None) -> str:
     """Refuse ``union`` where only the summed field is implemented (``what``:
-    the renderer, the contour outputs).
+    the renderer, the contour outputs; ``hint``: the way out, default
+    ``--blend sum``).
 
     Raises
     ------
@@ -87,9 +88,10 @@ def require_sum(blend, what: str) -> str:
     """
     b = check_blend(blend)
     if b != "sum":
+        hint = hint or ("use --blend sum there (slicing to images and printer formats supports "
+                        "--blend union)")
         raise OptionError(f"--blend {b}: {what} evaluates the summed field only and does not support the union "
-                          f"blend; use --blend sum there (slicing to images and printer formats supports "
-                          f"--blend union)")
+                          f"blend; {hint}")
     return b
 
 

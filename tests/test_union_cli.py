@@ -14,6 +14,7 @@ from formats import WRITERS
 from slicer import Skeleton
 from slicer.field import evaluate
 from slicer.parts import Part, PartMesh
+from slicer.printability import printed_widths
 from slicer.meshes import make_mesh
 from slicer.part_slicing import slice_part, slice_part_planned
 from test_cli_slice import run
@@ -136,3 +137,29 @@ def test_part_with_a_mesh_traces_the_union():
 def test_info_reports_the_blend(elbow):
     r = run("info", elbow, "--blend", "union")
     assert r.exit_code == 0 and "blend union" in r.output
+
+
+def test_check_measures_thin_struts_on_the_union(tmp_path):
+    """Two parallel struts 0.07 mm apart (radius 0.05 mm): the sum widens each one's thinnest
+    diameter, the union does not (it is the strut's own, 2 r); check measures on the blend it
+    sliced with."""
+    s = Skeleton([[0, 0, 0], [0, 0, 1], [0.07, 0, 0], [0.07, 0, 1]], [[0, 1], [2, 3]], [[0.05, 0.05]] * 2)
+    ws, wu = printed_widths(s, blend="sum"), printed_widths(s, blend="union")
+    assert np.all(wu < ws - 5e-4) and np.allclose(wu, 0.1, atol=1e-6)
+    scene = tmp_path / "x.json"
+    s.save(scene)
+    for blend, n in (("union", 2), ("sum", 0)):
+        out = tmp_path / f"{blend}.json"
+        r = run("check", scene, "--pixel-size", "0.01", "--blend", blend, "--min-feature", "0.1005", "--json", out)
+        assert r.exit_code in (0, 1), r.output
+        assert len(json.loads(out.read_text())["thin_segments"]) == n, blend
+
+
+def test_preview_refuses_what_sums(elbow, tmp_path):
+    r = run("preview", elbow, "-o", tmp_path / "p.html", "--pixel-size", "0.1", "--blend", "union")
+    assert r.exit_code == 2 and "--no-contours" in r.output and not (tmp_path / "p.html").exists()
+    r = run("preview", elbow, "-o", tmp_path / "p.html", "--pixel-size", "0.1", "--blend", "union", "--no-contours")
+    assert r.exit_code == 2 and "--no-render" in r.output
+    r = run("preview", elbow, "-o", tmp_path / "p.html", "--pixel-size", "0.1", "--blend", "union", "--no-contours",
+            "--no-render")
+    assert r.exit_code == 0 and (tmp_path / "p.html").exists()
