@@ -73,6 +73,15 @@ class SliceResult:
     def n_runs(self) -> int:
         return int(self.pix.shape[0])
 
+    def inside_box(self) -> tuple[int, int, int, int, int, int] | None:
+        """Index box ``(i0, i1, j0, j1, k0, k1)`` (inclusive) of the inside
+        voxels on :attr:`grid`, or None when nothing is inside."""
+        if self.n_runs == 0:
+            return None
+        j, i = np.divmod(self.pix, self.grid.width)
+        return (int(i.min()), int(i.max()), int(j.min()), int(j.max()), int(self.k0.min()),
+                int(self.k1.max()) - 1)
+
     def iter_layers(self, value: int = 255) -> Iterator[np.ndarray]:
         """Yield each layer as a (height, width) uint8 image, bottom layer first.
 
