@@ -42,9 +42,59 @@ from ..part_slicing import PartResult, PartStreamedResult
 from ..parts import ROLES
 from ..skeleton import Skeleton
 from ..slicing import SliceResult
-from .marching import layer_mask, mask_rings
+from .cells import check_resolvable, guaranteed_rings
+from .marching import layer_mask
 from .rings import _polygons_only, rings_to_multipolygon
 from .roots import _check_tol
+from .simplify import _keep_simple, refine_rings
+
+
+def grid_box(grid):
+    """The grid's box in the layer plane, half a pixel beyond the outer pixel
+    centres: ``(xmin, ymin, xmax, ymax)``, mm."""
+    (x0, y0), (px, py) = grid.origin[:2], grid.pixel_size
+    return (float(x0 - 0.5 * px), float(y0 - (grid.height - 0.5) * py),
+            float(x0 + (grid.width - 0.5) * px), float(y0 + 0.5 * py))
+
+
+def plane_contours(skel: Skeleton, z: float, tol: float = 1e-3, box=None, stats: dict | None = None,
+                   refine: bool = True):
+    """Guaranteed contours of the plane ``z`` (:mod:`slicer.contours.cells`).
+
+    Vertices lie on the surface to ``tol``; chords are refined to ``tol``
+    (:func:`slicer.contours.simplify.refine_rings`); every part of the section
+    wider than ``tol`` is present, whatever the pixel size.
+
+    Parameters
+    ----------
+    skel : Skeleton
+    z : float, mm
+    tol : float, mm
+    box : (4,) float, optional, mm
+        ``(xmin, ymin, xmax, ymax)``: the section is clipped to it (where the
+        solid reaches a grid's border, the contour follows the border).
+    stats : dict, optional
+        Work counts (:func:`slicer.contours.cells.guaranteed_rings`, ``refined``).
+    refine : bool
+
+    Returns
+    -------
+    shapely.MultiPolygon
+        Valid; outer rings counter-clockwise, holes clockwise.
+    """
+    st: dict = {}
+    rings = guaranteed_rings(skel, z, tol, st)
+    if refine and rings:
+        rings = _keep_simple(refine_rings(skel, rings, float(z), tol, st), rings, st)
+    mp = rings_to_multipolygon(rings)
+    if stats is not None:
+        for key, v in st.items():
+            stats[key] = stats.get(key, 0) + v
+    if box is not None and not mp.is_empty:
+        xa, ya, xb, yb = mp.bounds
+        if xa < box[0] or ya < box[1] or xb > box[2] or yb > box[3]:
+            mp = _polygons_only(mp.intersection(shapely.box(*box)))
+    return mp
 
 
 def layer_contours(skel: Skeleton, result: SliceResult, k: int, tol: float = 1e-3):
@@ -66,12 +116,11 @@ def layer_contours(skel: Skeleton, result: SliceResult, k: int, tol: float = 1e-
     shapely.MultiPolygon
         mm; valid, outer rings counter-clockwise, holes clockwise.
     """
-    tol = _check_tol(tol)
+    tol = check_resolvable(skel, _check_tol(tol))
     g = result.grid
-    mask = layer_mask(result, k)
+    layer_mask(result, k)                      # refuses a layer out of range
     z = g.origin[2] + int(k) * g.layer_height
-    rings = mask_rings(skel, mask, g.origin[:2], g.pixel_size, z, tol)
-    return rings_to_multipolygon(rings)
+    return plane_contours(skel, z, tol, grid_box(g))
 
 
 def iter_contours(skel: Skeleton, result: SliceResult, tol: float = 1e-3,
@@ -102,19 +151,16 @@ def iter_contours(skel: Skeleton, result: SliceResult, tol: float = 1e-3,
     if isinstance(result, (PartResult, PartStreamedResult)):     # a lattice with meshes
         yield from iter_part_contours(result, tol, stats, placement)
         return
+    tol = check_resolvable(skel, tol)
     g = result.grid
     k_lo, k_hi = 0, g.layers
     if placement is not None:
         k_lo, k_hi = placement.k_first, placement.k_first + placement.layers
         dx, dy, _ = placement.offset(g)
-    for k, img in enumerate(result.iter_layers(1)):
-        if k < k_lo:
-            continue
-        if k >= k_hi:
-            break
+    box = grid_box(g)
+    for k in range(k_lo, k_hi):
         z = g.origin[2] + k * g.layer_height
-        rings = mask_rings(skel, img.astype(bool), g.origin[:2], g.pixel_size, z, tol, stats=stats)
-        polys = rings_to_multipolygon(rings)
+        polys = plane_contours(skel, z, tol, box, stats)
         if placement is None:
             yield k, z, polys
         else:
@@ -130,10 +176,9 @@ def _part_layer(result, sections: dict, img, k: int, tol: float, stats: dict | N
     g, lat = result.grid, result.lattice
     z = g.origin[2] + k * g.layer_height
     geom = shapely.MultiPolygon()
-    if img is not None and img.any():          # the lattice's own contours, on its own (uncut) grid
+    if img is not None:                        # the lattice's own contours, clipped to its own (uncut) grid
         lz = lat.grid.origin[2] + (k + result.lattice_offset[2]) * lat.grid.layer_height
-        geom = rings_to_multipolygon(mask_rings(result.part.skeleton, img.astype(bool), lat.grid.origin[:2],
-                                                lat.grid.pixel_size, lz, tol, stats=stats))
+        geom = plane_contours(result.part.skeleton, lz, tol, grid_box(lat.grid), stats)
     for role, op in (("clip-inside", "intersection"), ("clip-outside", "difference"), ("solid", "union")):
         if role in sections:
             geom = getattr(geom, op)(rings_to_multipolygon(sections[role].rings(z)))
@@ -251,4 +296,4 @@ def write_contours(skel: Skeleton, result: SliceResult, path, tol: float = 1e-3,
     return {"layers": n, "vertices": nv, "seconds": time.perf_counter() - t0, "path": str(path)}
 
 
-__all__ = ["layer_contours", "iter_contours", "iter_part_contours", "part_layer_contours", "write_contours"]
+__all__ = ["plane_contours", "grid_box", "layer_contours", "iter_contours", "iter_part_contours", "part_layer_contours", "write_contours"]
