@@ -26,6 +26,7 @@ import numpy as np
 
 from .._jit import kernel
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
+from .raysupport import kprime_max
 
 #: relative slack on every computed bound (rounding of a few dozen operations is ~1e-15)
 SLACK = 1e-9
@@ -76,8 +77,78 @@ def kernel_curvature_max(n, sigma, norm):
     return norm * n / (sigma * sigma) * max(1.0, second)
 
 
+#: pieces of the reach interval bounded separately (tighter than one piece:
+#: the kernel's slope and curvature fall off away from the foot of c)
+PIECES = 8
+
+
 @kernel
-def disc_bounds(seg, ids, cx, cy, z, r, sigma, k1, k2):
+def _slope_sup(s, n, sigma, norm, k1):
+    """``sup |k'(s')|`` over ``s' >= s`` (|k'| rises up to d* = sigma/sqrt(n-1), then falls)."""
+    if s >= sigma:
+        return 0.0
+    if s * s * (n - 1.0) <= sigma * sigma:
+        return k1
+    u = s * s / (sigma * sigma)
+    return norm * n * s / (sigma * sigma) * (1.0 - u) ** (n // 2 - 1)
+
+
+@kernel
+def _curvature_sup(s, n, sigma, norm, k2):
+    """``sup max(|k''(s')|, |k'(s')/s'|)`` over ``s' >= s`` (see :func:`kernel_curvature_max`)."""
+    if s >= sigma:
+        return 0.0
+    m = n // 2
+    if m < 2:
+        return np.inf
+    u = s * s / (sigma * sigma)
+    first = (1.0 - u) ** (m - 1)
+    if m == 2:
+        second = 2.0
+    else:
+        v = max(u, 1.0 / (m - 1.0))
+        second = 2.0 * (m - 1.0) * v * (1.0 - v) ** (m - 2)
+    return min(k2, norm * n / (sigma * sigma) * max(first, second))
+
+
+@kernel
+def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
+    """Slope and curvature bounds of segment ``i`` over the disc, from the axis
+    points ``t`` in ``[ta, tb]``, split into ``PIECES`` pieces: on a piece,
+    ``s >= (dist(c, piece) - r) / tau_max`` and ``1/tau <= 1/tau_min``."""
+    wx = cx - seg[i, AX]
+    wy = cy - seg[i, AY]
+    wz = cz - seg[i, AZ]
+    ux = seg[i, UX]
+    uy = seg[i, UY]
+    uz = seg[i, UZ]
+    wu = wx * ux + wy * uy + wz * uz
+    tau0 = seg[i, TAU0]
+    d = seg[i, DELTA]
+    step = (tb - ta) / PIECES
+    g = 0.0
+    h = 0.0
+    for j in range(PIECES):
+        t0 = ta + j * step
+        t1 = tb if j == PIECES - 1 else t0 + step
+        tc = min(max(wu, t0), t1)
+        ex = wx - tc * ux
+        ey = wy - tc * uy
+        ez = wz - tc * uz
+        dist = math.sqrt(ex * ex + ey * ey + ez * ez)
+        tau_lo = tau0 + d * t0
+        tau_hi = tau0 + d * t1
+        if not tau_lo > 0.0:
+            return np.inf, np.inf
+        s_lo = max(dist * (1.0 - SLACK) - r, 0.0) / (tau_hi * (1.0 + SLACK))
+        ln = t1 - t0
+        g += ln * _slope_sup(s_lo, n, sigma, norm, k1) / (tau_lo * tau_lo)
+        h += ln * _curvature_sup(s_lo, n, sigma, norm, k2) / (tau_lo * tau_lo * tau_lo)
+    return g, h
+
+
+@kernel
+def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
     """Slope and curvature bounds of the field over discs of the plane ``z``.
 
     Parameters
@@ -89,18 +160,18 @@ def disc_bounds(seg, ids, cx, cy, z, r, sigma, k1, k2):
     cx, cy, r : (c,) float64, mm
         Disc centres and radii.
     z : float, mm
-    sigma : float
-    k1, k2 : float
-        ``max|k'|`` (:func:`slicer._kernels.raysupport.kprime_max`) and
-        :func:`kernel_curvature_max`.
+    n, sigma, norm : int, float, float
+        Kernel degree, support factor and normalisation.
 
     Returns
     -------
     G : (c,) float64, 1/mm
-        Upper bound of ``‖∇F‖`` over each disc.
+        Upper bound of ``‖∇F‖`` over each disc (0: no support reaches it).
     H : (c,) float64, 1/mm²
         Upper bound of the Hessian's norm over each disc (inf: none).
     """
+    k1 = kprime_max(n, sigma, norm)
+    k2 = kernel_curvature_max(n, sigma, norm)
     nc = cx.shape[0]
     G = np.zeros(nc)
     H = np.zeros(nc)
@@ -112,14 +183,9 @@ def disc_bounds(seg, ids, cx, cy, z, r, sigma, k1, k2):
             ta, tb = _reach_interval(seg, i, cx[j], cy[j], z, r[j], sigma)
             if not tb > ta:
                 continue
-            tau_a = seg[i, TAU0] + seg[i, DELTA] * ta
-            tau_b = seg[i, TAU0] + seg[i, DELTA] * tb
-            if not tau_a > 0.0:
-                g = np.inf
-                h = np.inf
-                break
-            g += (tb - ta) / (tau_a * tau_b)
-            h += (tb - ta) * (tau_a + tau_b) / (2.0 * tau_a * tau_a * tau_b * tau_b)
-        G[j] = g * k1 * (1.0 + SLACK)
-        H[j] = h * k2 * (1.0 + SLACK)
+            gi, hi = _piece_bounds(seg, i, cx[j], cy[j], z, r[j], ta, tb, n, sigma, norm, k1, k2)
+            g += gi
+            h += hi
+        G[j] = g * (1.0 + SLACK)
+        H[j] = h * (1.0 + SLACK)
     return G, H

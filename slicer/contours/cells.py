@@ -32,9 +32,8 @@ import math
 
 import numpy as np
 
-from .._kernels.cellbounds import SLACK, disc_bounds, kernel_curvature_max
+from .._kernels.cellbounds import SLACK, disc_bounds
 from .._kernels.contours import chain_rings
-from .._kernels.raysupport import kprime_max
 from ..errors import OptionError
 from ..field import point_grid, support_boxes
 from ..skeleton import Skeleton
@@ -86,14 +85,12 @@ class _Bounds:
     def __init__(self, skel: Skeleton, z: float, ids: np.ndarray, tol: float):
         self.skel, self.z, self.ids, self.tol = skel, float(z), ids, float(tol)
         self.table = point_grid(skel)[0]
-        n, s, N = skel.degree, skel.sigma, skel.normalisation
-        self.k1 = kprime_max(n, s, N)
-        self.k2 = kernel_curvature_max(n, s, N)
         self.evaluations = 0
 
     def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray) -> np.ndarray:
         """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8."""
-        G, H = disc_bounds(self.table, self.ids, cx, cy, self.z, r, self.skel.sigma, self.k1, self.k2)
+        sk = self.skel
+        G, H = disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
         # no support reaches the disc: F = 0 on it, no evaluation needed
         reach = np.flatnonzero(G > 0.0)
         f = np.zeros(cx.size)
