@@ -75,7 +75,7 @@ def plane_distance(skel, xy: np.ndarray, z: float):
     return d, f, gxy
 
 
-def project(skel, xy: np.ndarray, z: float, tol: float, reach_factor: float = 4.0, steps: int = 16):
+def project(skel, xy: np.ndarray, z: float, tol: float, reach_factor: float = 4.0, steps: int = 4):
     """A point of the contour of plane ``z`` on the in-plane gradient line through each point.
 
     The line ``xy + s n`` (``n`` the unit in-plane gradient) is sampled at

@@ -30,13 +30,14 @@ import numpy as np
 import shapely
 
 from slicer.checks import positive_number
-from slicer.contours import layer_mask, part_layer_contours, project_to_contour, rings_to_multipolygon
+from slicer.contours import layer_mask, part_layer_contours, rings_to_multipolygon
 from slicer.errors import GridError
 from slicer.field import evaluate
 from slicer.mesh_slicing import Sections
 from slicer.part_slicing import slice_part
 from slicer.parts import ROLES
 
+from .independent import project
 from .metrics import _edge_points, hausdorff, polygon_rings, rasterize_rings
 from .reference_mesh import reference_band
 from .validate import assemble_report, pick_layers
@@ -96,7 +97,7 @@ def _lattice_bound(part, lat_rings: list, polys, z: float, tol: float) -> float:
     pts = pts[shapely.distance(polys.boundary, shapely.points(pts)) < 1e-6]
     if not pts.shape[0]:
         return 0.0
-    roots, ok, first, _ = project_to_contour(part.skeleton, pts, z, tol)
+    roots, ok, first = project(part.skeleton, pts, z, tol)
     d = np.where(ok, np.hypot(*(roots - pts).T) + tol, first)
     d = d[np.isfinite(d)]
     return float(d.max()) if d.size else 0.0
