@@ -113,8 +113,8 @@ def _curvature_sup(s, n, sigma, norm, k2):
 
 @kernel
 def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
-    """Slope and curvature bounds of segment ``i`` over the disc, from the axis
-    points ``t`` in ``[ta, tb]``, split into ``PIECES`` pieces: on a piece,
+    """Slope, curvature and value bounds of segment ``i`` over the disc, from the
+    axis points ``t`` in ``[ta, tb]``, split into ``PIECES`` pieces: on a piece,
     ``s >= (dist(c, piece) - r) / tau_max`` and ``1/tau <= 1/tau_min``."""
     wx = cx - seg[i, AX]
     wy = cy - seg[i, AY]
@@ -128,6 +128,7 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
     step = (tb - ta) / PIECES
     g = 0.0
     h = 0.0
+    f = 0.0
     for j in range(PIECES):
         t0 = ta + j * step
         t1 = tb if j == PIECES - 1 else t0 + step
@@ -139,12 +140,14 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
         tau_lo = tau0 + d * t0
         tau_hi = tau0 + d * t1
         if not tau_lo > 0.0:
-            return np.inf, np.inf
+            return np.inf, np.inf, np.inf
         s_lo = max(dist * (1.0 - SLACK) - r, 0.0) / (tau_hi * (1.0 + SLACK))
         ln = t1 - t0
         g += ln * _slope_sup(s_lo, n, sigma, norm, k1) / (tau_lo * tau_lo)
         h += ln * _curvature_sup(s_lo, n, sigma, norm, k2) / (tau_lo * tau_lo * tau_lo)
-    return g, h
+        if s_lo < sigma:           # k falls with s: k(s') <= k(s_lo)
+            f += ln * norm * (1.0 - s_lo * s_lo / (sigma * sigma)) ** (n // 2) / tau_lo
+    return g, h, f
 
 
 @kernel
@@ -169,23 +172,30 @@ def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
         Upper bound of ``‖∇F‖`` over each disc (0: no support reaches it).
     H : (c,) float64, 1/mm²
         Upper bound of the Hessian's norm over each disc (inf: none).
+    U : (c,) float64
+        Upper bound of ``F`` over each disc (the integrand ``k(s)/tau`` is at
+        most ``k(s_lo)/tau_min`` on each piece).
     """
     k1 = kprime_max(n, sigma, norm)
     k2 = kernel_curvature_max(n, sigma, norm)
     nc = cx.shape[0]
     G = np.zeros(nc)
     H = np.zeros(nc)
+    U = np.zeros(nc)
     for j in range(nc):
         g = 0.0
         h = 0.0
+        u = 0.0
         for q in range(ids.shape[0]):
             i = ids[q]
             ta, tb = _reach_interval(seg, i, cx[j], cy[j], z, r[j], sigma)
             if not tb > ta:
                 continue
-            gi, hi = _piece_bounds(seg, i, cx[j], cy[j], z, r[j], ta, tb, n, sigma, norm, k1, k2)
+            gi, hi, ui = _piece_bounds(seg, i, cx[j], cy[j], z, r[j], ta, tb, n, sigma, norm, k1, k2)
             g += gi
             h += hi
+            u += ui
         G[j] = g * (1.0 + SLACK)
         H[j] = h * (1.0 + SLACK)
-    return G, H
+        U[j] = u * (1.0 + SLACK)
+    return G, H, U

@@ -87,12 +87,14 @@ class _Bounds:
         self.table = point_grid(skel)[0]
         self.evaluations = 0
 
-    def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray) -> np.ndarray:
-        """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8."""
+    def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
+        """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
+        and a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none)."""
         sk = self.skel
-        G, H = disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
-        # no support reaches the disc: F = 0 on it, no evaluation needed
-        reach = np.flatnonzero(G > 0.0)
+        G, H, U = disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
+        # the bound of F over the disc stays below 1 (or no support reaches it): outside, no evaluation
+        far = U * (1.0 + FIELD_SLACK) < 1.0
+        reach = np.flatnonzero(~far)
         f = np.zeros(cx.size)
         g = np.zeros((cx.size, 3))
         if reach.size:
@@ -108,7 +110,7 @@ class _Bounds:
             gs = FIELD_SLACK * (gn + G) + r * H
             gs = np.where(np.isnan(gs), np.inf, gs)
         state = np.full(cx.size, -1, np.int8)
-        state[f + spread + fs < 1.0] = OUT
+        state[(f + spread + fs < 1.0) | far] = OUT
         state[f - spread - fs > 1.0] = IN
         mx = np.abs(gx) > gs
         my = np.abs(gy) > gs
@@ -120,7 +122,11 @@ class _Bounds:
             gmin = np.maximum(np.abs(gx), np.abs(gy)) - gs
             cap = H * r * r / (4.0 * gmin)
         state[(state < 0) & (mx | my) & (gmin > 0) & (cap <= 0.5 * self.tol)] = ONEDIR
-        return state
+        # curvature of the contour in the cell: |F_tt| / |grad F| <= H / (least |grad_xy F|)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            glo = gn - gs
+            kappa = np.where(glo > 0, H / np.where(glo > 0, glo, 1.0), np.inf)
+        return state, kappa
 
 
 def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int, levels: int):
@@ -131,6 +137,8 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
     X0, Y0, X1, Y1 : (l,) int64
         Leaf corners on the finest lattice (spacing ``s0 / 2**levels``).
     state : (l,) int8
+    kappa : (l,) float64
+        Bound of the contour's curvature in each leaf, 1/mm.
     cells : int
         Cells examined.
     """
@@ -142,13 +150,13 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
             break
         s = s0 / 2.0 ** lev
         r = np.full(ix.size, 0.5 * math.sqrt(2.0) * s * (1.0 + SLACK))
-        state = bounds.classify(x0 + (ix + 0.5) * s, y0 + (iy + 0.5) * s, r)
+        state, kappa = bounds.classify(x0 + (ix + 0.5) * s, y0 + (iy + 0.5) * s, r)
         cells += ix.size
         if lev == levels:
             state[state < 0] = SMALL
         done = state >= 0
         unit = 1 << (levels - lev)
-        out.append((ix[done] * unit, iy[done] * unit, unit, state[done]))
+        out.append((ix[done] * unit, iy[done] * unit, unit, state[done], kappa[done]))
         split = ~done
         ix = (2 * ix[split][:, None] + np.array([0, 1, 0, 1])).ravel()
         iy = (2 * iy[split][:, None] + np.array([0, 0, 1, 1])).ravel()
@@ -156,7 +164,8 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
     Y0 = np.concatenate([o[1] for o in out])
     size = np.concatenate([np.full(o[0].size, o[2], np.int64) for o in out])
     state = np.concatenate([o[3] for o in out])
-    return X0, Y0, X0 + size, Y0 + size, state, cells
+    kappa = np.concatenate([o[4] for o in out])
+    return X0, Y0, X0 + size, Y0 + size, state, kappa, cells
 
 
 def _edge_points(line: np.ndarray, keys_line: np.ndarray, keys_pos: np.ndarray,
@@ -238,7 +247,7 @@ def _boundary_walks(X0, Y0, X1, Y1):
 
 
 def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | None = None,
-                     root_cell: float | None = None) -> list[np.ndarray]:
+                     root_cell: float | None = None, certified: list | None = None) -> list[np.ndarray]:
     """Rings of the exact section ``F(x, y, z) >= 1``, every feature wider than ``tol``.
 
     Parameters
@@ -254,6 +263,10 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
     root_cell : float, optional, mm
         Side of the root cells (default: ``ROOT_CELL_RADII`` times the median
         radius of the plane's struts).
+    certified : list, optional
+        Filled with one (n_q,) bool array per ring: chord ``i -> i + 1`` lies in
+        a simple leaf whose curvature bound ``kappa`` proves its arc within
+        ``tol / 4`` of it (``l**2 kappa / 4 <= tol / 4`` and ``l kappa <= 1``).
 
     Returns
     -------
@@ -284,7 +297,7 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
     ny = int(math.ceil((yhi - ylo) / s0)) + 2
     x0, y0 = xlo - s0, ylo - s0                  # one empty root cell all around
     bounds = _Bounds(skel, z, ids, tol)
-    X0, Y0, X1, Y1, state, cells = _quadtree(bounds, x0, y0, s0, nx, ny, levels)
+    X0, Y0, X1, Y1, state, kappa, cells = _quadtree(bounds, x0, y0, s0, nx, ny, levels)
     st["cells"] += cells
     st["leaves"] += X0.size
     st["small_leaves"] += int((state == SMALL).sum())
@@ -338,6 +351,18 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
     verts = (A + tt[:, None] * (B - A))[:, :2]
     st["vertices"] += int(ukey.size)
     rings = [verts[order[starts[q]:starts[q + 1]]] for q in range(starts.size - 1)]
+    if certified is not None:
+        # the chord leaving each elementary edge runs inside the leaf where that edge is an exit
+        leaf_of = np.full(ukey.size, -1, np.int64)
+        leaf_of[eid[ex]] = act[lf[ex]]
+        for q in range(starts.size - 1):
+            ids_q = order[starts[q]:starts[q + 1]]
+            r_q = verts[ids_q]
+            ell = np.hypot(*(np.roll(r_q, -1, axis=0) - r_q).T)
+            lq = leaf_of[ids_q]
+            kq = np.where(state[lq] == SIMPLE, kappa[lq], np.inf)
+            with np.errstate(invalid="ignore", over="ignore"):
+                certified.append((ell * ell * kq <= tol) & (ell * kq <= 1.0))
     return done(rings)
 
 

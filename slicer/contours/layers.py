@@ -83,9 +83,10 @@ def plane_contours(skel: Skeleton, z: float, tol: float = 1e-3, box=None, stats:
         Valid; outer rings counter-clockwise, holes clockwise.
     """
     st: dict = {}
-    rings = guaranteed_rings(skel, z, tol, st)
+    cert: list = []
+    rings = guaranteed_rings(skel, z, tol, st, certified=cert)
     if refine and rings:
-        rings = _keep_simple(refine_rings(skel, rings, float(z), tol, st), rings, st)
+        rings = _keep_simple(refine_rings(skel, rings, float(z), tol, st, certified=cert), rings, st)
     mp = rings_to_multipolygon(rings)
     if stats is not None:
         for key, v in st.items():

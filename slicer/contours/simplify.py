@@ -16,7 +16,8 @@ CHORD_FRACTION = 0.5
 
 
 def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
-                 stats: dict | None = None, max_rounds: int = 8) -> list[np.ndarray]:
+                 stats: dict | None = None, max_rounds: int = 8,
+                 certified: list[np.ndarray] | None = None) -> list[np.ndarray]:
     """Subdivide chords that stray more than ``tol / 2`` from the surface.
 
     The distance of a chord's quarter points and midpoint to the contour is
@@ -34,7 +35,11 @@ def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
     stats : dict, optional
         ``refined`` and ``evaluations`` are increased.
     max_rounds : int
-        Rounds of splitting (each re-checks the new chords' midpoints).
+        Rounds of splitting (each checks the new chords' midpoints; a chord
+        found within the tolerance is not checked again).
+    certified : list of (n_q,) bool, optional
+        Chords (vertex i to i + 1) already proven within ``tol / 2`` of the
+        contour (:func:`slicer.contours.cells.guaranteed_rings`): not checked.
 
     Returns
     -------
@@ -45,6 +50,7 @@ def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
     sizes = np.array([r.shape[0] for r in rings])
     xy = np.concatenate(rings)
     ring_of = np.repeat(np.arange(len(rings)), sizes)
+    done = np.concatenate(certified) if certified is not None else np.zeros(xy.shape[0], bool)
     added = 0
     evals = 0
     for _ in range(max_rounds):
@@ -53,14 +59,20 @@ def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
         nxt[starts + sizes - 1] = starts
         p, q = xy, xy[nxt]
         chord = np.hypot(*(q - p).T)
+        todo = np.flatnonzero(~done & (chord > 2 * tol))
+        if todo.size == 0:
+            break
         # quarter points too: on a chord across varying curvature the largest
         # deviation need not be at the midpoint
         fr = np.array([0.25, 0.5, 0.75])[None, :, None]
-        m3 = (p[:, None, :] + fr * (q - p)[:, None, :]).reshape(-1, 2)
-        dist, _, _ = plane_distance(skel, m3, z)
-        dist = dist.reshape(-1, 3).max(axis=1)
+        pt, qt = p[todo], q[todo]
+        m3 = (pt[:, None, :] + fr * (qt - pt)[:, None, :]).reshape(-1, 2)
+        dist = np.full(xy.shape[0], 0.0)
+        dist[todo] = plane_distance(skel, m3, z)[0].reshape(-1, 3).max(axis=1)
         evals += m3.shape[0]
-        bad = np.flatnonzero(~(dist <= CHORD_FRACTION * tol) & (chord > 2 * tol))
+        bad = todo[~(dist[todo] <= CHORD_FRACTION * tol)]
+        done[todo] = True                    # checked: fine, or split below
+        done[bad] = False
         if bad.size == 0:
             break
         # a chord's sagitta shrinks as its length squared: split it into
@@ -84,6 +96,7 @@ def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
         order = np.lexsort((sub, pos))
         xy = np.concatenate([xy, roots[ok]])[order]
         ring_of = np.concatenate([ring_of, ring_of[ins]])[order]
+        done = np.concatenate([done, np.zeros(ins.size, bool)])[order]
         sizes = np.bincount(ring_of, minlength=len(rings))
         added += ins.size
     if stats is not None:
