@@ -40,10 +40,16 @@ from pathlib import Path
 
 import numpy as np
 
-from slicer.contours import grid_box, plane_contours
+from sample_lattices import load_sample
+from slicer._kernels.launch import numba_threads
+from slicer.contours import grid_box, layer_mask, mask_rings, plane_contours
+from slicer.field import evaluate
+from slicer.grid import make_grid
+from slicer.slicing import slice_skeleton, trace
 
 from . import machine
-from .metrics import polygon_rings
+from .bench import _warmup
+from .metrics import hausdorff, polygon_rings
 
 #: reference: pixels across the support box, contour tolerance (mm)
 REF_PIXELS = 1024
@@ -90,9 +96,6 @@ class Reference:
         self.seconds = 0.0
 
     def rings(self, z: float) -> list[np.ndarray]:
-        from slicer.contours import layer_mask, mask_rings
-        from slicer.slicing import slice_skeleton
-
         z = float(z)
         if z not in self.cache:
             t0 = time.perf_counter()
@@ -118,11 +121,6 @@ def run_config(skel, cfg: dict, keep: set[int]) -> tuple[float, dict, dict]:
     info : dict
         Grid and counters.
     """
-    from slicer.contours import mask_rings
-    from slicer.field import evaluate
-    from slicer.grid import make_grid
-    from slicer.slicing import trace
-
     (x0, y0, x1, y1), (z0, z1) = square_box(skel)
     px = (x1 - x0) / cfg["pixels"]
     h = (z1 - z0) / cfg["layers"]
@@ -159,8 +157,6 @@ def run_config(skel, cfg: dict, keep: set[int]) -> tuple[float, dict, dict]:
 
 def measure(skel, cfg: dict, ref: Reference, repeat: int = 1) -> dict:
     """Time and error of one configuration (best time of ``repeat`` runs)."""
-    from .metrics import hausdorff
-
     (_, _, _, _), (z0, z1) = square_box(skel)
     h = (z1 - z0) / cfg["layers"]
     targets = [z0 + f * (z1 - z0) for f in TARGETS]
@@ -195,11 +191,6 @@ def sweep(model: str = "jellyfish", configs=None, quick: bool = False, repeat: i
           progress=None, ref_pixels: int = REF_PIXELS, ref_tol: float = REF_TOL) -> dict:
     """Run the sweep; returns a JSON-ready dict (``ref_pixels``, ``ref_tol``: the reference's
     resolution and contour tolerance, mm)."""
-    from sample_lattices import load_sample
-    from slicer._kernels.launch import numba_threads
-
-    from .bench import _warmup
-
     skel = load_sample(model)
     compile_s = _warmup()
     configs = configs or default_sweep(quick)

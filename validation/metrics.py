@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .independent import plane_distance, project
 from slicer.field import evaluate
+
+from .independent import plane_distance, project
 
 
 def polygon_rings(mp) -> list[np.ndarray]:

@@ -26,6 +26,16 @@ from pathlib import Path
 
 import numpy as np
 
+from slicer.atomic import AtomicDir, check_destination
+from slicer.checks import positive_number
+from slicer.contours import layer_contours, layer_mask
+from slicer.errors import GridError
+from slicer.slicing import slice_skeleton
+
+from .bench import square_bounds
+from .metrics import compare_layer, contour_error_bound, polygon_rings, rasterize_rings, summarise
+from .reference_mesh import reference_sections
+
 #: slack for floating-point noise in distance checks, mm
 SLACK = 1e-9
 
@@ -77,15 +87,6 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
         ``checks`` (name -> bool), ``passed``, ``timings``; ``_sections`` and
         ``_result`` hold the objects the report images are drawn from.
     """
-    from slicer.contours import layer_contours, layer_mask
-    from slicer.checks import positive_number
-    from slicer.errors import GridError
-    from slicer.slicing import slice_skeleton
-
-    from .bench import square_bounds
-    from .metrics import compare_layer, contour_error_bound, polygon_rings, summarise
-    from .reference_mesh import reference_sections
-
     tol = positive_number(tol, "contour tolerance", GridError)
     if pixel_size is None:
         if int(pixels) < 2:
@@ -136,7 +137,6 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
 def assemble_report(rows: list[dict], settings: dict, grid, timings: dict, tol: float, max_hausdorff, min_iou,
                     result, sections, ours) -> dict:
     """The report of :func:`validate` from its per-layer rows: summary, checks, verdict."""
-    from .metrics import summarise
 
     summary = summarise(rows)
     if rows:
@@ -205,10 +205,6 @@ def overlay_image(mask: np.ndarray, ref_rings: list[np.ndarray], ref_raster: np.
 
 def write_report(report: dict, out, force: bool = False, images: int = 4) -> Path:
     """Write ``report.json`` and overlay PNGs of the worst layers to folder ``out``, atomically."""
-    from slicer.atomic import AtomicDir, check_destination
-    from slicer.contours import layer_mask
-
-    from .metrics import polygon_rings, rasterize_rings
 
     out = Path(out)
     check_destination(out, force)
