@@ -109,3 +109,19 @@ def test_tolerance_below_float64_resolution_is_refused():
     with pytest.raises(OptionError, match="1e-09"):
         check_resolvable(s, 1e-9)
     assert check_resolvable(s, 1e-3) == 1e-3
+
+
+def test_cli_refuses_an_unresolvable_tolerance_before_any_work(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from slicer.cli import main
+
+    scene = tmp_path / "far.json"
+    scene.write_text(json.dumps({"skelslice": 1, "units": "mm", "nodes": [[1e5, 0, 0], [1e5, 0, 2]],
+                                 "segments": [[0, 1]], "radii": [0.5, 0.5]}))
+    out = tmp_path / "far.svg"
+    res = CliRunner().invoke(main, ["slice", str(scene), "-o", str(out), "--pixel-size", "0.1",
+                                    "--contour-tol", "1e-9"])
+    assert res.exit_code == 2 and "--contour-tol 1e-09" in res.output and not out.exists()
