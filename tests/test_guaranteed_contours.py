@@ -125,3 +125,19 @@ def test_cli_refuses_an_unresolvable_tolerance_before_any_work(tmp_path):
     res = CliRunner().invoke(main, ["slice", str(scene), "-o", str(out), "--pixel-size", "0.1",
                                     "--contour-tol", "1e-9"])
     assert res.exit_code == 2 and "--contour-tol 1e-09" in res.output and not out.exists()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_scenes_within_tolerance_of_the_dense_section(seed):
+    """Random tapering struts, small and thin against a 0.1 mm pixel, two planes each."""
+    rng = np.random.default_rng(1000 + seed)
+    n = int(rng.integers(3, 6))
+    nodes = rng.uniform(-0.6, 0.6, (n, 3))
+    segs = [[i, i + 1] for i in range(n - 1)]
+    radii = rng.uniform(0.02, 0.2, (len(segs), 2))
+    s = Skeleton(nodes, segs, radii)
+    lo, hi = s.support_bounds()
+    for z in rng.uniform(lo[2] + 0.1 * (hi[2] - lo[2]), hi[2] - 0.1 * (hi[2] - lo[2]), 2):
+        ours = plane_contours(s, float(z), TOL)
+        ref = _check_plane(s, float(z), ours)
+        assert len(ours.geoms) == len(ref.geoms)
