@@ -97,7 +97,9 @@ def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: boo
     if isinstance(skel, Part) and not skel.has_meshes:     # a lattice alone: the lattice's own path
         skel = skel.skeleton
     # a contour tolerance float64 cannot resolve at the scene's coordinates: refused before any work
-    check_resolvable(skel.skeleton if isinstance(skel, Part) else skel, out_opts.contour_tol)
+    lattice = skel.skeleton if isinstance(skel, Part) else skel
+    if lattice is not None:                                # (a part may hold meshes only)
+        check_resolvable(lattice, out_opts.contour_tol)
     traced = _trace(skel, job, resolved, progress=progress, dry_run=dry_run, report=report,
                     executor_info=executor_info)
     if dry_run:
