@@ -38,6 +38,7 @@ from ..errors import OptionError
 from ..field import point_grid, support_boxes
 from ..skeleton import Skeleton
 from .roots import _field, solve_crossings
+from .simplify import CHORD_FRACTION
 
 #: relative error budget of one closed-form field evaluation (docs/math.md §2.6
 #: and the stiff-case suite: ~1e-13); cells are settled only beyond it
@@ -45,6 +46,10 @@ FIELD_SLACK = 1e-9
 
 #: root cells have this many times the median radius of the plane's struts
 ROOT_CELL_RADII = 0.5
+
+#: sagitta of a chord of length l across an arc of curvature <= kappa, l kappa <= 1:
+#: at most SAGITTA * l**2 * kappa (1/8 for small angles, 0.134 at l kappa = 1)
+SAGITTA = 0.145
 
 #: smallest tolerance as a multiple of the float64 spacing at the scene's coordinates
 TOL_ULPS = 1024
@@ -266,7 +271,10 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
     certified : list, optional
         Filled with one (n_q,) bool array per ring: chord ``i -> i + 1`` lies in
         a simple leaf whose curvature bound ``kappa`` proves its arc within
-        ``tol / 4`` of it (``l**2 kappa / 4 <= tol / 4`` and ``l kappa <= 1``).
+        ``CHORD_FRACTION * tol`` of it: ``SAGITTA * l**2 * kappa <= CHORD_FRACTION * tol``
+        and ``l * kappa <= 1`` (an arc of curvature at most kappa, turning less than
+        a half turn, is no farther from its chord than the circular arc of curvature
+        kappa: ``(1 - sqrt(1 - (l kappa / 2)**2)) / kappa <= 0.134 l**2 kappa``).
 
     Returns
     -------
@@ -362,7 +370,7 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
             lq = leaf_of[ids_q]
             kq = np.where(state[lq] == SIMPLE, kappa[lq], np.inf)
             with np.errstate(invalid="ignore", over="ignore"):
-                certified.append((ell * ell * kq <= tol) & (ell * kq <= 1.0))
+                certified.append((SAGITTA * ell * ell * kq <= CHORD_FRACTION * tol) & (ell * kq <= 1.0))
     return done(rings)
 
 
