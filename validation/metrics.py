@@ -132,7 +132,7 @@ def vertex_surface_distance(skel, rings: list[np.ndarray], z: float) -> dict:
 
 
 def contour_error_bound(skel, rings: list[np.ndarray], z: float, tol: float = 1e-5,
-                        samples: int | None = None, gap: float = 4e-3) -> dict:
+                        samples: int = 12) -> dict:
     """How far a polyline contour (e.g. a mesh section) is from the exact one.
 
     Each edge is sampled at ``samples`` points (vertices included); every
@@ -155,8 +155,6 @@ def contour_error_bound(skel, rings: list[np.ndarray], z: float, tol: float = 1e
     if not rings:
         return {"bound": 0.0, "first_order": 0.0, "unbracketed": 0, "samples": 0}
     longest = max((float(np.hypot(*(np.roll(r, -1, axis=0) - r).T).max()) for r in rings if len(r)), default=0.0)
-    if samples is None:           # enough samples per edge that half their spacing is at most ``gap``
-        samples = int(np.clip(np.ceil(longest / (2.0 * gap)), 2, 256))
     pts = _edge_points(rings, samples)
     roots, ok, first = project(skel, pts, z, tol)
     d = np.where(ok, np.hypot(*(roots - pts).T) + tol, first)

@@ -171,11 +171,12 @@ def validate_part(part, *, pixel_size: float | None = None, pixels: int = 512, p
         unexplained = int((~(_surface_distance(part, xy, z, mesh_secs) <= bound + SLACK)).sum())
         verts = np.concatenate(our_rings) if our_rings else np.zeros((0, 2))
         vmax = float(_surface_distance(part, verts, z, mesh_secs).max()) if verts.shape[0] else 0.0
+        off = _off_boundary(ours, own_raster != mask, g)        # mismatches not explained by the boundary
         row = {"k": int(k), "z": float(z), "iou": float(ours.intersection(ref).area / union) if union > 0 else 1.0,
                "xor_area": float(ours.symmetric_difference(ref).area), "area": float(ours.area),
                "ref_area": float(ref.area), "hausdorff": haus, "hausdorff_px": haus / min(px, py),
                "pixel_mismatch": int(mism.sum()), "pixel_mismatch_unexplained": unexplained,
-               "contour_raster_mismatch": _off_boundary(ours, own_raster != mask, g),
+               "contour_raster_mismatch": off, "contour_raster_unexplained": off,
                "vertex_max_3d": vmax, "vertex_max_plane": vmax, "vertices": int(verts.shape[0]),
                "valid": bool(ours.is_valid and shapely.is_valid(ref)), "mesh_bound": bound,
                "mesh_first_order": bound, "mesh_unbracketed": 0,
