@@ -282,28 +282,72 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
         Outer rings counter-clockwise, holes clockwise (not yet refined).
     """
     st = {"evaluations": 0, "cells": 0, "leaves": 0, "small_leaves": 0, "vertices": 0, "unbracketed": 0}
-
-    def done(rings):
-        if stats is not None:
-            for key, v in st.items():
-                stats[key] = stats.get(key, 0) + v
-        return rings
-
+    rings = []
     ids = plane_segments(skel, z)
-    if ids.size == 0:
-        return done([])
+    if ids.size:
+        rings = _plane_rings(skel, float(z), tol, ids, root_cell, certified, st)
+    if stats is not None:
+        for key, v in st.items():
+            stats[key] = stats.get(key, 0) + v
+    return rings
+
+
+def _root_grid(skel: Skeleton, ids: np.ndarray, tol: float, root_cell: float | None):
+    """Root cells over the support of the plane's segments, one empty cell all around:
+    ``(x0, y0, s0, nx, ny, levels)``."""
     lo, hi = support_boxes(skel)
     xlo, ylo = lo[ids, 0].min(), lo[ids, 1].min()
     xhi, yhi = hi[ids, 0].max(), hi[ids, 1].max()
     if root_cell is None:
-        taus = skel.radii[ids].mean(axis=1)
-        root_cell = ROOT_CELL_RADII * float(np.median(taus))
-    ext = max(xhi - xlo, yhi - ylo)
-    s0 = float(min(max(root_cell, 4.0 * tol), ext))
+        root_cell = ROOT_CELL_RADII * float(np.median(skel.radii[ids].mean(axis=1)))
+    s0 = float(min(max(root_cell, 4.0 * tol), max(xhi - xlo, yhi - ylo)))
     levels = max(0, int(math.ceil(math.log2(math.sqrt(2.0) * s0 / tol))))
     nx = int(math.ceil((xhi - xlo) / s0)) + 2
     ny = int(math.ceil((yhi - ylo) / s0)) + 2
-    x0, y0 = xlo - s0, ylo - s0                  # one empty root cell all around
+    return xlo - s0, ylo - s0, s0, nx, ny, levels
+
+
+def _next_in_group(group: np.ndarray) -> np.ndarray:
+    """Index of the next element of the same (contiguous) group, cyclically."""
+    nxt = np.arange(group.size) + 1
+    last = np.flatnonzero(np.r_[group[1:] != group[:-1], True])
+    nxt[last] = np.r_[0, last[:-1] + 1]
+    return nxt
+
+
+def _pair_crossings(leaf, point, inside, npts: int):
+    """Sign changes along the leaves' walks, paired exit -> next entry in each leaf.
+
+    Returns
+    -------
+    ukey : (e,) int64
+        Elementary edges with a crossing, ``inside point * npts + outside point``.
+    succ : (e,) int64
+        The edge each one's segment leads to.
+    exit_leaf : (e,) int64
+        Walk-leaf index of the segment leaving each edge.
+    """
+    a_pt, b_pt = point, point[_next_in_group(leaf)]
+    cx_i = np.flatnonzero(inside[a_pt] != inside[b_pt])
+    if cx_i.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    exit_ = inside[a_pt[cx_i]]                     # inside -> outside going counter-clockwise
+    lf = leaf[cx_i]
+    nxt_c = _next_in_group(lf)                     # the partner of an exit: the next crossing
+    e_in = np.where(exit_, a_pt[cx_i], b_pt[cx_i])
+    e_out = np.where(exit_, b_pt[cx_i], a_pt[cx_i])
+    ukey, eid = np.unique(e_in * npts + e_out, return_inverse=True)
+    ex = np.flatnonzero(exit_)
+    succ = np.full(ukey.size, -1, np.int64)
+    succ[eid[ex]] = eid[nxt_c[ex]]
+    exit_leaf = np.full(ukey.size, -1, np.int64)
+    exit_leaf[eid[ex]] = lf[ex]
+    return ukey, succ, exit_leaf
+
+
+def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray]:
+    """:func:`guaranteed_rings` for a plane that some supports meet."""
+    x0, y0, s0, nx, ny, levels = _root_grid(skel, ids, tol, root_cell)
     bounds = _Bounds(skel, z, ids, tol)
     X0, Y0, X1, Y1, state, kappa, cells = _quadtree(bounds, x0, y0, s0, nx, ny, levels)
     st["cells"] += cells
@@ -312,66 +356,40 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
     st["evaluations"] += bounds.evaluations
     act = np.flatnonzero(state >= SIMPLE)
     if act.size == 0:
-        return done([])
+        return []
     px, py, leaf, point = _boundary_walks(X0[act], Y0[act], X1[act], Y1[act])
     h = s0 / 2.0 ** levels
     wx, wy = x0 + px * h, y0 + py * h
-    f = _field(skel, np.column_stack([wx, wy, np.full(px.size, float(z))]))[0]
+    f = _field(skel, np.column_stack([wx, wy, np.full(px.size, z)]))[0]
     st["evaluations"] += px.size
-    inside = f >= 1.0
-    # steps p -> q along each leaf's walk (cyclic within the leaf)
-    nxt = np.arange(leaf.size) + 1
-    last = np.flatnonzero(np.r_[leaf[1:] != leaf[:-1], True])
-    first = np.r_[0, last[:-1] + 1]
-    nxt[last] = first
-    a_pt, b_pt = point, point[nxt]
-    change = inside[a_pt] != inside[b_pt]
-    cx_i = np.flatnonzero(change)
-    if cx_i.size == 0:
-        return done([])
-    exit_ = inside[a_pt[cx_i]]                     # inside -> outside going counter-clockwise
-    lf = leaf[cx_i]
-    # partner of each exit: the next crossing of the same leaf (cyclically)
-    nxt_c = np.arange(cx_i.size) + 1
-    lastc = np.flatnonzero(np.r_[lf[1:] != lf[:-1], True])
-    firstc = np.r_[0, lastc[:-1] + 1]
-    nxt_c[lastc] = firstc
-    # elementary edge of each crossing, as its (inside point, outside point)
-    e_in = np.where(exit_, a_pt[cx_i], b_pt[cx_i])
-    e_out = np.where(exit_, b_pt[cx_i], a_pt[cx_i])
-    ekey = e_in * px.size + e_out
-    ukey, eid = np.unique(ekey, return_inverse=True)
-    ex = np.flatnonzero(exit_)
-    succ = np.full(ukey.size, -1, np.int64)
-    succ[eid[ex]] = eid[nxt_c[ex]]
+    ukey, succ, exit_leaf = _pair_crossings(leaf, point, f >= 1.0, px.size)
+    if ukey.size == 0:
+        return []
     order, starts, status = chain_rings(succ)
     if status != 0:   # pragma: no cover - every elementary edge borders two walked leaves
         raise RuntimeError("guaranteed contours: crossings do not chain into closed rings")
     ui, uo = np.divmod(ukey, px.size)
-    za = np.full(ui.size, float(z))
+    za = np.full(ui.size, z)
     A = np.column_stack([wx[ui], wy[ui], za])
     B = np.column_stack([wx[uo], wy[uo], za])
-    pts, tt, ok, ne = solve_crossings(skel, A, B, tol, fa=f[ui], fb=f[uo])
+    _, tt, ok, ne = solve_crossings(skel, A, B, tol, fa=f[ui], fb=f[uo])
     st["evaluations"] += ne
     st["unbracketed"] += int((~ok).sum())
-    # keep vertices off the lattice points so that rings stay simple
-    tt = np.clip(tt, 1e-6, 1.0 - 1e-6)
+    tt = np.clip(tt, 1e-6, 1.0 - 1e-6)            # keep vertices off the lattice points: rings stay simple
     verts = (A + tt[:, None] * (B - A))[:, :2]
     st["vertices"] += int(ukey.size)
     rings = [verts[order[starts[q]:starts[q + 1]]] for q in range(starts.size - 1)]
     if certified is not None:
-        # the chord leaving each elementary edge runs inside the leaf where that edge is an exit
-        leaf_of = np.full(ukey.size, -1, np.int64)
-        leaf_of[eid[ex]] = act[lf[ex]]
+        lk = act[exit_leaf]                        # the leaf each chord crosses
+        kq = np.where(state[lk] == SIMPLE, kappa[lk], np.inf)
         for q in range(starts.size - 1):
             ids_q = order[starts[q]:starts[q + 1]]
             r_q = verts[ids_q]
             ell = np.hypot(*(np.roll(r_q, -1, axis=0) - r_q).T)
-            lq = leaf_of[ids_q]
-            kq = np.where(state[lq] == SIMPLE, kappa[lq], np.inf)
+            k_q = kq[ids_q]
             with np.errstate(invalid="ignore", over="ignore"):
-                certified.append((SAGITTA * ell * ell * kq <= CHORD_FRACTION * tol) & (ell * kq <= 1.0))
-    return done(rings)
+                certified.append((SAGITTA * ell * ell * k_q <= CHORD_FRACTION * tol) & (ell * k_q <= 1.0))
+    return rings
 
 
 __all__ = ["guaranteed_rings", "check_resolvable", "plane_segments", "FIELD_SLACK", "ROOT_CELL_RADII"]
