@@ -46,7 +46,7 @@ from .cells import check_resolvable, guaranteed_rings
 from .marching import layer_mask
 from .rings import _polygons_only, rings_to_multipolygon
 from .roots import _check_tol
-from .simplify import _keep_simple, refine_rings
+from .simplify import SIMPLIFY_FRACTION, _keep_simple, refine_rings, simplify
 
 
 def grid_box(grid):
@@ -61,9 +61,10 @@ def plane_contours(skel: Skeleton, z: float, tol: float = 1e-3, box=None, stats:
                    refine: bool = True):
     """Guaranteed contours of the plane ``z`` (:mod:`slicer.contours.cells`).
 
-    Vertices lie on the surface to ``tol``; chords are refined to ``tol``
-    (:func:`slicer.contours.simplify.refine_rings`); every part of the section
-    wider than ``tol`` is present, whatever the pixel size.
+    Vertices lie on the surface to ``tol``; chords are refined to ``tol / 2``
+    (:func:`slicer.contours.simplify.refine_rings`), then vertices a chord can
+    skip within ``tol / 4`` are dropped (:func:`slicer.contours.simplify.simplify`);
+    every part of the section wider than ``tol`` is present, whatever the pixel size.
 
     Parameters
     ----------
@@ -88,6 +89,8 @@ def plane_contours(skel: Skeleton, z: float, tol: float = 1e-3, box=None, stats:
     if refine and rings:
         rings = _keep_simple(refine_rings(skel, rings, float(z), tol, st, certified=cert), rings, st)
     mp = rings_to_multipolygon(rings)
+    if refine and not mp.is_empty:
+        mp = simplify(mp, SIMPLIFY_FRACTION * tol)
     if stats is not None:
         for key, v in st.items():
             stats[key] = stats.get(key, 0) + v

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
+from shapely.geometry.polygon import orient
 
 from ..skeleton import Skeleton
 from .roots import plane_distance, project_to_contour
@@ -106,6 +107,23 @@ def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
     return [xy[bounds[q]:bounds[q + 1]] for q in range(len(rings))]
 
 
+#: vertices whose removal moves the contour by at most this fraction of ``tol`` are dropped
+SIMPLIFY_FRACTION = 0.25
+
+
+def simplify(mp, dist: float):
+    """Drop vertices of a MultiPolygon that a chord can skip within ``dist`` mm
+    (Douglas-Peucker, topology preserved: rings stay simple and apart); the kept
+    vertices are a subset, so still on the surface. Returns ``mp`` itself if the
+    result would not be a valid MultiPolygon of the same number of parts."""
+    out = shapely.simplify(mp, dist, preserve_topology=True)
+    if out.geom_type == "Polygon":
+        out = shapely.MultiPolygon([out])
+    if out.geom_type != "MultiPolygon" or not out.is_valid or len(out.geoms) != len(mp.geoms):
+        return mp
+    return shapely.MultiPolygon([orient(p, 1.0) for p in out.geoms])
+
+
 def _keep_simple(refined: list[np.ndarray], raw: list[np.ndarray], stats: dict) -> list[np.ndarray]:
     """Undo the refinement of rings that it made self-intersecting or made
     touch another ring (a thin neck, a projection across a gap). Marching
@@ -125,4 +143,4 @@ def _keep_simple(refined: list[np.ndarray], raw: list[np.ndarray], stats: dict) 
     return [raw[q] if bad[q] else refined[q] for q in range(len(refined))]
 
 
-__all__ = ["refine_rings", "CHORD_FRACTION"]
+__all__ = ["refine_rings", "simplify", "CHORD_FRACTION", "SIMPLIFY_FRACTION"]
