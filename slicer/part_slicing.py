@@ -262,11 +262,11 @@ def slice_part(part, pixel_size: float, pixel_size_y: float | None = None, layer
     if not part.has_meshes:
         return slice_skeleton(part.skeleton, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads,
                               strict, spans, span_tol, blend=blend)
-    require_traceable(blend)
+    require_traceable(blend, method=method)
     grid = part_grid(part, pixel_size, pixel_size_y, layer_height, bounds)
     if part.skeleton is not None:
         lat = trace(part.skeleton, grid, method=method, bucket=bucket, threads=threads, strict=strict,
-                    spans=spans, span_tol=span_tol)
+                    spans=spans, span_tol=span_tol, blend=blend)
     else:
         lat = _empty(grid, spans, method)
     return _finish(part, _slice_meshes(part, lat, spans), bounds is None)
@@ -401,24 +401,25 @@ def slice_part_planned(part, pixel_size: float, pixel_size_y=None, layer_height=
     part = as_part(part)
     run_kw = dict(max_memory=max_memory, executor=executor, executor_info=executor_info, workers=workers,
                   scheduler=scheduler, tile=tile)
+    run_kw["blend"] = require_traceable(blend, method=method)
     if not part.has_meshes:
-        require_traceable(blend)
         if plan is None:
             info = executor_info if executor_info is not None or not (executor is None or isinstance(executor, str)) \
                 else describe(executor or "serial", workers, scheduler)
             plan = plan_slice(part.skeleton, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads,
-                              strict, spans, span_tol, max_memory=max_memory, executor_info=info, tile=tile, slab=slab)
+                              strict, spans, span_tol, max_memory=max_memory, executor_info=info, tile=tile, slab=slab,
+                              blend=blend)
         return slice_planned(part.skeleton, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads,
                              strict, spans, span_tol, plan=plan, progress=progress, **run_kw)
     if part.skeleton is None:
         return slice_part(part, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict,
                           spans, span_tol)
-    require_traceable(blend)
     if plan is None:
         info = executor_info if executor_info is not None or not (executor is None or isinstance(executor, str)) \
             else describe(executor or "serial", workers, scheduler)
         plan = plan_part(part, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict,
-                         spans, span_tol, max_memory=max_memory, executor_info=info, tile=tile, slab=slab)
+                         spans, span_tol, max_memory=max_memory, executor_info=info, tile=tile, slab=slab,
+                         blend=blend)
     args = (part.skeleton, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict, spans,
             span_tol)
 

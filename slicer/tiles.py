@@ -174,12 +174,12 @@ def slice_planned(skel: Skeleton, pixel_size: float, pixel_size_y: float | None 
                   spans: bool = False, span_tol: float | None = None, *, max_memory=None,
                   executor=None, executor_info=None, workers: int | None = None,
                   scheduler: str | None = None, tile: int | None = None,
-                  progress: bool | None = None, plan: TilePlan | None = None):
+                  progress: bool | None = None, plan: TilePlan | None = None, blend: str = "sum"):
     """:func:`slicer.slicing.slice_skeleton` within a memory budget, on any executor.
 
     Parameters
     ----------
-    skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict
+    skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict, blend
         As :func:`slicer.slicing.slice_skeleton`.
     spans, span_tol
         As :func:`slicer.slicing.trace`.
@@ -214,14 +214,16 @@ def slice_planned(skel: Skeleton, pixel_size: float, pixel_size_y: float | None 
         if plan is None:    # plan (and refuse absurd requests) before any cluster starts
             plan = plan_slice(skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads,
                               strict, spans, span_tol, max_memory=max_memory,
-                              executor_info=executor_info or describe(kind, workers, scheduler), tile=tile)
+                              executor_info=executor_info or describe(kind, workers, scheduler), tile=tile,
+                              blend=blend)
         ex, info = stack.enter_context(open_executor(kind, workers, scheduler))
     else:
         ex, info = executor, executor_info
         if plan is None:
             plan = plan_slice(skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads,
-                              strict, spans, span_tol, max_memory=max_memory, executor_info=info, tile=tile)
-    opts = TraceOptions(method, bucket, threads, strict, spans, span_tol)
+                              strict, spans, span_tol, max_memory=max_memory, executor_info=info, tile=tile,
+                              blend=blend)
+    opts = TraceOptions(method, bucket, threads, strict, spans, span_tol, blend)
     try:
         res = _run_plan(skel, plan, opts, ex, info, progress)
     except BaseException:
