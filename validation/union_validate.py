@@ -147,6 +147,8 @@ def compare_union_layer(skel: Skeleton, res, k: int, ids: list[int], sec: Sectio
             "pixel_mismatch": int(mism.sum()),
             "pixel_mismatch_unexplained": unexplained_pixels(skel, ids, mism, g.origin[:2], g.pixel_size, z, bound),
             "contour_raster_mismatch": int((own != mask).sum()),
+            "contour_raster_unexplained": unexplained_pixels(skel, ids, own != mask, g.origin[:2], g.pixel_size, z,
+                                                             tol),
             "vertex_max_3d": union_vertex_distance(skel, our_rings, z), "vertex_max_plane": float("nan"),
             "vertices": int(sum(len(r) for r in our_rings)), "valid": bool(ours.is_valid),
             "mesh_bound": bound, "mesh_first_order": float("nan"), "mesh_unbracketed": 0,
