@@ -29,12 +29,13 @@ import numpy as np
 import shapely
 
 from slicer.checks import positive_number
-from slicer.contours import layer_contours, layer_mask, plane_distance, rings_to_multipolygon
+from slicer.contours import layer_contours, layer_mask, rings_to_multipolygon
 from slicer.errors import GridError
 from slicer.field import evaluate
 from slicer.skeleton import Skeleton
 from slicer.slicing import slice_skeleton, trace
 
+from .independent import plane_distance
 from .metrics import contour_error_bound, hausdorff, polygon_rings, rasterize_rings
 from .reference_mesh import Section, reference_band
 from .validate import assemble_report, default_pitch, pick_layers
