@@ -23,6 +23,10 @@ from .._jit import kernel
 from .field import SCRATCH, segment_eval
 from .raysupport import H_TIN, H_TOUT, NHIT, lipschitz
 
+#: relative pad of every verdict "F > 1" / "F < 1" from bounds: a bound must
+#: clear 1 by PAD * (1 + |bound|), far above the rounding of the summed field
+PAD = 1e-10
+
 
 @kernel
 def walk_buffers(nl, stack):
@@ -176,6 +180,22 @@ def piece_bounds(hrec, sarr, ns, F, FP, ia, ib, ta, tb, strict):
         monotone and crosses 1 at most once), 0 otherwise. ``strict`` never
         reports a monotone piece.
     """
+    return piece_bounds_iv(hrec, sarr, ns, F, F, FP, ia, ib, ta, tb, strict, None)
+
+
+@kernel
+def piece_bounds_iv(hrec, sarr, ns, F, FH, FP, ia, ib, ta, tb, strict, mstat):
+    """:func:`piece_bounds` from per-primitive *bounds* at the piece's ends.
+
+    ``F[row, s] <= f_s <= FH[row, s]`` (equal where the value is known; a
+    primitive only ever carries a strict bound on a stretch where it is
+    monotone, see :func:`slicer._kernels.lazy.split_lazy`), and ``FP`` a
+    derivative whose sign is that of the primitive's slope there. With
+    exact ends (``FH`` is ``F``) the result is :func:`piece_bounds`'s, to
+    the bit. ``mstat`` (None, or (ns,) int64, out) receives each primitive's
+    kind on the piece: +1 increasing, -1 decreasing, 0 zero (its Lipschitz
+    bound is 0 and both ends are 0), 2 ambiguous.
+    """
     lo = 0.0
     hi = 0.0
     n_inc = 0
@@ -184,9 +204,11 @@ def piece_bounds(hrec, sarr, ns, F, FP, ia, ib, ta, tb, strict):
     for s in range(ns):
         f0 = F[ia, s]
         f1 = F[ib, s]
+        g0 = FH[ia, s]
+        g1 = FH[ib, s]
         d0 = FP[ia, s]
         d1 = FP[ib, s]
-        if f0 == 0.0 and f1 == 0.0 and d0 == 0.0 and d1 == 0.0:
+        if g0 == 0.0 and g1 == 0.0 and f0 == 0.0 and f1 == 0.0 and d0 == 0.0 and d1 == 0.0:
             # zero with zero slope at both ends (outside the support, or a
             # piece that swallows a whole bump): Lipschitz, never monotone
             # unless the bound says the primitive is zero on the piece
@@ -195,22 +217,30 @@ def piece_bounds(hrec, sarr, ns, F, FP, ia, ib, ta, tb, strict):
             if K == 0.0:
                 n_inc += 1
                 n_dec += 1
+            if mstat is not None:
+                mstat[s] = 0 if K == 0.0 else 2
             continue
         if not strict and d1 > 0.0 and d0 >= 0.0:
             lo += f0
-            hi += f1
+            hi += g1
             n_inc += 1
+            if mstat is not None:
+                mstat[s] = 1
         elif not strict and d0 < 0.0 and d1 <= 0.0:
             lo += f1
-            hi += f0
+            hi += g0
             n_dec += 1
+            if mstat is not None:
+                mstat[s] = -1
         else:
             K = lipschitz(hrec, sarr[s], ta, tb)
-            hi += 0.5 * (f0 + f1 + K * w)
+            hi += 0.5 * (g0 + g1 + K * w)
             if strict:
                 lo += max(0.0, 0.5 * (f0 + f1 - K * w))
             else:
                 lo += min(f0, f1)
+            if mstat is not None:
+                mstat[s] = 2
     mono = 0
     if not strict:
         if n_inc == ns:

@@ -47,8 +47,8 @@ from numba import prange
 
 from .._jit import kernel, parallel_kernel
 from .field import segment_eval
-from .rays import (eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits, sort_unique,
-                   walk_buffers)
+from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits,
+                   sort_unique, walk_buffers)
 from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, ray_support
 
 OK = 0
@@ -331,7 +331,7 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
                     sarr[ns] = r
                     ns += 1
                     fmax += hrec[r, H_FMAX]
-            if ns == 0 or fmax < 1.0 - 1e-10 * (1.0 + fmax):
+            if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
                 continue   # the primitives' bounds on the whole ray exclude 1
             fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, ta, m, inv_s2, norm,
                                    scratch, st_f, st_fp, cur, ct, cf, cfp)
@@ -346,7 +346,7 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
                 te = st_t[p]
                 fe, d0, d1 = piece_ends(st_f, st_fp, cur, p, ns)
                 lo, hi, mono = piece_bounds(hrec, sarr, ns, st_f, st_fp, cur, p, tcur, te, strict)
-                pad = 1e-10 * (1.0 + abs(hi))
+                pad = PAD * (1.0 + abs(hi))
                 width = te - tcur
                 tm = tcur + 0.5 * width
                 settle = lo > 1.0 + pad or hi < 1.0 - pad

@@ -30,8 +30,9 @@ from numba import prange
 
 from .._jit import kernel, parallel_kernel
 from .field import segment_eval
-from .rays import (eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits, sort_unique,
-                   walk_buffers)
+from .lazy import split_lazy
+from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds_iv, piece_ends, sort_hits,
+                   sort_unique, walk_buffers)
 from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, lipschitz, ray_support
 
 OK = 0
@@ -85,6 +86,13 @@ def _emit(k0, k1, inside, rk0, rk1, nrun, cap):
 
 
 @kernel
+def _exact_row(F, FH, row, ns):
+    """Row ``row`` holds known values: upper bounds = lower bounds."""
+    for s in range(ns):
+        FH[row, s] = F[row, s]
+
+
+@kernel
 def _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order):
     """Hit records of the bucket's segments ids[i0:i1] with the vertical ray
     at (px, py), kept if they reach [zlo, zhi]; returns the count, sorted by t_in
@@ -120,7 +128,7 @@ def _cluster_field(seg, hprim, hrec, order, a, b, px, py, z, m, inv_s2, norm, sc
 
 @kernel
 def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict, cut_support,
-                       scratch, hprim, hrec, order, bps, sarr, st_f, st_fp,
+                       scratch, hprim, hrec, order, bps, sarr, st_f, st_fh, st_fp, mstat,
                        st_kind, st_t, st_k0, st_k1, ct, cf, cfp, rk0, rk1, cap, spans, span_tol, cz, xcap):
     """Classify the K voxel centres of one ray (interval method).
 
@@ -132,6 +140,10 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     increasing order; the ray is outside below the first one, and they
     alternate entry / exit. A ray inside at the grid's bottom (or top)
     gets a crossing exactly there.
+
+    Without spans and ``strict``, split points are lazy
+    (:func:`slicer._kernels.lazy.split_lazy`): ``st_f`` / ``st_fh`` hold
+    per-primitive lower / upper bounds, equal where the value is known.
 
     Returns
     -------
@@ -147,6 +159,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     inv_s2 = 1.0 / (sigma * sigma)
     zlo = z0 - 0.5 * h
     zhi = z0 + (K - 0.5) * h
+    lazy = not spans and not strict
     cur = st_f.shape[0] - 1     # row of the values at the current point (stack slots below it)
     nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
     for r in range(nh):
@@ -200,13 +213,15 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                         sarr[ns] = r
                         ns += 1
                         fmax += hrec[r, H_FMAX]
-                if ns == 0 or fmax < 1.0 - 1e-10 * (1.0 + fmax):
+                if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
                     # the primitives' bounds on the whole ray already exclude 1
                     continue
                 fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ta, m, inv_s2,
                                        norm, scratch, st_f, st_fp, cur, ct, cf, cfp)
                 _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, tb, m, inv_s2,
                                     norm, scratch, st_f, st_fp, 0, ct, cf, cfp)
+                _exact_row(st_f, st_fh, cur, ns)
+                _exact_row(st_f, st_fh, 0, ns)
                 nev += ne1 + ne2
                 if spans and (fcur >= 1.0) != inside:
                     # only after a skipped stretch (below the grid): enter here
@@ -236,9 +251,9 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     if q1 < q0 and not spans:
                         done = True
                     else:
-                        lo, hi, mono = piece_bounds(hrec, sarr, ns, st_f, st_fp, cur, p,
-                                                     tcur, e_t, strict)
-                        pad = 1e-10 * (1.0 + abs(hi))
+                        lo, hi, mono = piece_bounds_iv(hrec, sarr, ns, st_f, st_fh, st_fp, cur, p,
+                                                       tcur, e_t, strict, mstat)
+                        pad = PAD * (1.0 + abs(hi))
                         if lo > 1.0 + pad:
                             nrun = _emit(q0, q1, True, rk0, rk1, nrun, cap)
                             done = True
@@ -267,6 +282,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                                 fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ts,
                                                      m, inv_s2, norm, scratch, st_f, st_fp, p + 1,
                                                      ct, cf, cfp)
+                                _exact_row(st_f, st_fh, p + 1, ns)
                                 nev += ne1
                                 st_kind[p + 1] = 0
                                 st_t[p + 1] = ts
@@ -301,6 +317,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             inside = not inside
                         for s in range(ns):
                             st_f[cur, s] = st_f[p, s]
+                            st_fh[cur, s] = st_fh[p, s]
                             st_fp[cur, s] = st_fp[p, s]
                         fcur = fe
                         tcur = e_t
@@ -321,12 +338,18 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                         return -1, nev, nx
                     # right part keeps slot p (its right-end data are already there)
                     st_k0[p] = km + 1
-                    fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, zm, m, inv_s2,
-                                         norm, scratch, st_f, st_fp, p + 2, ct, cf, cfp)
+                    if lazy:
+                        inm, ne1 = split_lazy(seg, hprim, hrec, sarr, ns, px, py, zm, m, inv_s2, norm, scratch,
+                                              st_f, st_fh, st_fp, cur, p, p + 2, mstat, ct, cf, cfp)
+                    else:
+                        fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, zm, m,
+                                             inv_s2, norm, scratch, st_f, st_fp, p + 2, ct, cf, cfp)
+                        _exact_row(st_f, st_fh, p + 2, ns)
+                        inm = fm >= 1.0
                     nev += ne1
                     st_kind[p + 1] = 1
                     st_k0[p + 1] = km
-                    st_k1[p + 1] = 1 if fm >= 1.0 else 0
+                    st_k1[p + 1] = 1 if inm else 0
                     st_kind[p + 2] = 0
                     st_t[p + 2] = zm
                     st_k0[p + 2] = q0
@@ -496,6 +519,8 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
         i1 = bucket_off[bidx + 1]
         nl = max(i1 - i0, 1)
         scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = walk_buffers(nl, MAX_STACK)
+        st_fh = np.empty_like(st_f)
+        mstat = np.empty(nl, dtype=np.int64)
         st_kind = np.empty(MAX_STACK, dtype=np.int64)
         st_k0 = np.empty(MAX_STACK, dtype=np.int64)
         st_k1 = np.empty(MAX_STACK, dtype=np.int64)
@@ -522,7 +547,7 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                 if method == 0:
                     nr, ne, nx = trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
                                                     kmax, strict, cut_support, scratch, hprim, hrec, order, bps,
-                                                    sarr, st_f, st_fp, st_kind, st_t, st_k0,
+                                                    sarr, st_f, st_fh, st_fp, mstat, st_kind, st_t, st_k0,
                                                     st_k1, ct, cf, cfp, rk0, rk1, room, spans, span_tol,
                                                     cross_z[q, xused:], xcap - xused)
                 elif method == 1:
