@@ -22,8 +22,8 @@ from __future__ import annotations
 
 from .._jit import kernel
 from .field import segment_eval
-from .rays import PAD
-from .raysupport import H_TIN, H_TOUT
+from .rays import PAD, piece_bounds_iv
+from .raysupport import H_FMAX, H_TIN, H_TOUT
 
 #: kinds written by piece_bounds_iv into ``mstat``
 M_INC, M_DEC, M_ZERO, M_AMBIGUOUS = 1, -1, 0, 2
@@ -107,6 +107,21 @@ def split_lazy(seg, hprim, hrec, sarr, ns, px, py, t, m, inv_s2, norm, scratch, 
             FP[row, s] = fp
         else:
             _carry(F, FH, FP, ia, ib, row, s, k)
+    inside, ne = settle(seg, hprim, hrec, sarr, ns, px, py, t, m, inv_s2, norm, scratch, F, FH, FP, row, mstat,
+                        ia, ib, True, ct, cf, cfp)
+    return inside, nev + ne
+
+
+@kernel
+def settle(seg, hprim, hrec, sarr, ns, px, py, t, m, inv_s2, norm, scratch, F, FH, FP, row, mstat, ia, ib,
+           keep_sign, ct, cf, cfp):
+    """The class ``F(t) >= 1`` of the point of ``row``, evaluating its
+    unknown primitives widest bound first until the summed bound clears 1 by
+    the pad (or every value is known: then the in-order sum decides).
+    With ``keep_sign``, an evaluated monotone primitive (``mstat``) keeps the
+    slope sign of its stretch (rows ``ia``/``ib``) if rounding flattened it.
+    Returns ``(inside, evaluations)``."""
+    nev = 0
     while True:
         lo, hi, smax = _sums(F, FH, row, ns)
         if smax < 0:
@@ -122,11 +137,81 @@ def split_lazy(seg, hprim, hrec, sarr, ns, px, py, t, m, inv_s2, norm, scratch, 
         FH[row, smax] = f
         # a monotone primitive's slope at t, if it came out flat or of the
         # other sign by rounding, keeps the stretch's sign: the halves stay monotone
-        if mstat[smax] == M_INC and not fp > 0.0:
+        if keep_sign and mstat[smax] == M_INC and not fp > 0.0:
             fp = FP[ib, smax]
-        elif mstat[smax] == M_DEC and not fp < 0.0:
+        elif keep_sign and mstat[smax] == M_DEC and not fp < 0.0:
             fp = FP[ia, smax]
         FP[row, smax] = fp
 
 
-__all__ = ["split_lazy", "eval_z", "M_INC", "M_DEC", "M_ZERO", "M_AMBIGUOUS"]
+@kernel
+def bound_at(hrec, r, t, ct, cf, cfp):
+    """Bound of hit ``r`` at ``t`` without evaluating it: exact outside its
+    open support interval (0) and where it was last evaluated (tc); else,
+    by unimodality along the ray, ``[0, f(tc)]`` where the slope at tc
+    points down toward t (beyond a falling tc, before a rising one), and
+    ``[0, fmax]`` (``H_FMAX``, a bound on the whole ray) otherwise.
+
+    Returns
+    -------
+    lo, hi, fp : float
+        ``fp`` is the slope where known; at an unknown end, -1 (+1) where
+        the primitive is known to fall (rise) there, 0 where its direction is
+        unknown (then :func:`slicer._kernels.rays.piece_bounds_iv` never
+        calls it monotone).
+    """
+    if not (t > hrec[r, H_TIN] and t < hrec[r, H_TOUT]):
+        return 0.0, 0.0, 0.0
+    tc = ct[r]
+    if tc == t:
+        return cf[r], cf[r], cfp[r]
+    if t > tc and cfp[r] < 0.0:
+        return 0.0, cf[r], -1.0
+    if t < tc and cfp[r] > 0.0:
+        return 0.0, cf[r], 1.0
+    return 0.0, hrec[r, H_FMAX], 0.0
+
+
+@kernel
+def lazy_ends(seg, hprim, hrec, sarr, ns, px, py, ta, tb, m, inv_s2, norm, scratch, F, FH, FP, ia, ib, mstat,
+              ct, cf, cfp):
+    """Rows ``ia``/``ib`` at the ends of the piece ``[ta, tb]`` from
+    :func:`bound_at`, then exact values for the primitives with the widest
+    bounds, one primitive at a time, until the piece's bound
+    (:func:`slicer._kernels.rays.piece_bounds_iv`) clears 1 by the pad or
+    every end value is known. Returns the evaluations done."""
+    for s in range(ns):
+        r = sarr[s]
+        F[ia, s], FH[ia, s], FP[ia, s] = bound_at(hrec, r, ta, ct, cf, cfp)
+        F[ib, s], FH[ib, s], FP[ib, s] = bound_at(hrec, r, tb, ct, cf, cfp)
+    nev = 0
+    while True:
+        lo, hi, _ = piece_bounds_iv(hrec, sarr, ns, F, FH, FP, ia, ib, ta, tb, False, mstat)
+        pad = PAD * (1.0 + abs(hi))
+        if lo > 1.0 + pad or hi < 1.0 - pad:
+            return nev
+        best = -1
+        wbest = -1.0
+        for s in range(ns):
+            w = (FH[ia, s] - F[ia, s]) + (FH[ib, s] - F[ib, s])
+            if (F[ia, s] != FH[ia, s] or F[ib, s] != FH[ib, s]) and w > wbest:
+                wbest = w
+                best = s
+        if best < 0:
+            return nev
+        r = sarr[best]
+        if F[ia, best] != FH[ia, best]:
+            f, fp, ne = eval_z(seg, hprim, hrec, r, px, py, ta, m, inv_s2, norm, scratch, ct, cf, cfp)
+            F[ia, best] = f
+            FH[ia, best] = f
+            FP[ia, best] = fp
+            nev += ne
+        if F[ib, best] != FH[ib, best]:
+            f, fp, ne = eval_z(seg, hprim, hrec, r, px, py, tb, m, inv_s2, norm, scratch, ct, cf, cfp)
+            F[ib, best] = f
+            FH[ib, best] = f
+            FP[ib, best] = fp
+            nev += ne
+
+
+__all__ = ["split_lazy", "settle", "bound_at", "lazy_ends", "eval_z", "M_INC", "M_DEC", "M_ZERO", "M_AMBIGUOUS"]

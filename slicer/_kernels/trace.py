@@ -30,7 +30,7 @@ from numba import prange
 
 from .._jit import kernel, parallel_kernel
 from .field import segment_eval
-from .lazy import split_lazy
+from .lazy import lazy_ends, settle, split_lazy
 from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds_iv, piece_ends, sort_hits,
                    sort_unique, walk_buffers)
 from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, lipschitz, ray_support
@@ -216,13 +216,21 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                 if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
                     # the primitives' bounds on the whole ray already exclude 1
                     continue
-                fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ta, m, inv_s2,
-                                       norm, scratch, st_f, st_fp, cur, ct, cf, cfp)
-                _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, tb, m, inv_s2,
-                                    norm, scratch, st_f, st_fp, 0, ct, cf, cfp)
-                _exact_row(st_f, st_fh, cur, ns)
-                _exact_row(st_f, st_fh, 0, ns)
-                nev += ne1 + ne2
+                if lazy:
+                    # the ends' values only as far as the piece's verdict needs them
+                    nev += lazy_ends(seg, hprim, hrec, sarr, ns, px, py, ta, tb, m, inv_s2, norm, scratch,
+                                     st_f, st_fh, st_fp, cur, 0, mstat, ct, cf, cfp)
+                    fcur = 0.0
+                    for s in range(ns):
+                        fcur += st_f[cur, s]
+                else:
+                    fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ta, m,
+                                           inv_s2, norm, scratch, st_f, st_fp, cur, ct, cf, cfp)
+                    _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, tb, m, inv_s2,
+                                        norm, scratch, st_f, st_fp, 0, ct, cf, cfp)
+                    _exact_row(st_f, st_fh, cur, ns)
+                    _exact_row(st_f, st_fh, 0, ns)
+                    nev += ne1 + ne2
                 if spans and (fcur >= 1.0) != inside:
                     # only after a skipped stretch (below the grid): enter here
                     if nx >= xcap:
@@ -291,8 +299,15 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                                 sp = p + 2
                                 continue
                         elif z0 + q0 * h == tcur:
-                            # the first centre sits on the left end: its value is known
-                            nrun = _emit(q0, q0, fcur >= 1.0, rk0, rk1, nrun, cap)
+                            # the first centre sits on the left end: its value is known (lazy: as
+                            # far as its class needs)
+                            in0 = fcur >= 1.0
+                            if lazy:
+                                in0, ne1 = settle(seg, hprim, hrec, sarr, ns, px, py, tcur, m, inv_s2, norm,
+                                                  scratch, st_f, st_fh, st_fp, cur, mstat, cur, p, False,
+                                                  ct, cf, cfp)
+                                nev += ne1
+                            nrun = _emit(q0, q0, in0, rk0, rk1, nrun, cap)
                             st_k0[p] = q0 + 1
                             sp += 1
                             if nrun < 0:
