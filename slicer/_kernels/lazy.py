@@ -30,16 +30,20 @@ M_INC, M_DEC, M_ZERO, M_AMBIGUOUS = 1, -1, 0, 2
 
 
 @kernel
-def eval_z(seg, hprim, hrec, r, px, py, t, m, inv_s2, norm, scratch, ct, cf, cfp):
-    """Value and z-slope of hit ``r`` at ``(px, py, t)``, as
-    :func:`slicer._kernels.rays.eval_along` computes them (same cache, zero
-    outside the open support interval); returns ``(f, f', evaluations)``."""
+def eval_dir(seg, hprim, hrec, r, ray, t, kp, scratch, ct, cf, cfp):
+    """Value and directional slope of hit ``r`` at ``o + t d``
+    (``ray = (ox, oy, oz, dx, dy, dz)``, ``kp = (m, 1/sigma^2, N)``), computed
+    as :func:`slicer._kernels.rays.eval_along` does (same cache, zero outside
+    the open support interval); returns ``(f, f', evaluations)``."""
     if not (t > hrec[r, H_TIN] and t < hrec[r, H_TOUT]):
         return 0.0, 0.0, 0
     if ct[r] == t:
         return cf[r], cfp[r], 0
-    f, gx, gy, gz = segment_eval(seg, hprim[r], px, py, t, m, inv_s2, norm, True, scratch)
-    fp = gx * 0.0 + gy * 0.0 + gz * 1.0
+    ox, oy, oz, dx, dy, dz = ray
+    m, inv_s2, norm = kp
+    f, gx, gy, gz = segment_eval(seg, hprim[r], ox + t * dx, oy + t * dy, oz + t * dz, m, inv_s2, norm, True,
+                                 scratch)
+    fp = gx * dx + gy * dy + gz * dz
     ct[r] = t
     cf[r] = f
     cfp[r] = fp
@@ -84,8 +88,7 @@ def _sums(F, FH, row, ns):
 
 
 @kernel
-def split_lazy(seg, hprim, hrec, sarr, ns, px, py, t, m, inv_s2, norm, scratch, F, FH, FP, ia, ib, row, mstat,
-               ct, cf, cfp):
+def split_lazy(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FH, FP, ia, ib, row, mstat, ct, cf, cfp):
     """Bounds at the split point ``t`` of the piece between rows ``ia`` and
     ``ib`` into ``row``, and the class of ``t``.
 
@@ -100,21 +103,20 @@ def split_lazy(seg, hprim, hrec, sarr, ns, px, py, t, m, inv_s2, norm, scratch, 
     for s in range(ns):
         k = mstat[s]
         if k == M_AMBIGUOUS:
-            f, fp, ne = eval_z(seg, hprim, hrec, sarr[s], px, py, t, m, inv_s2, norm, scratch, ct, cf, cfp)
+            f, fp, ne = eval_dir(seg, hprim, hrec, sarr[s], ray, t, kp, scratch, ct, cf, cfp)
             nev += ne
             F[row, s] = f
             FH[row, s] = f
             FP[row, s] = fp
         else:
             _carry(F, FH, FP, ia, ib, row, s, k)
-    inside, ne = settle(seg, hprim, hrec, sarr, ns, px, py, t, m, inv_s2, norm, scratch, F, FH, FP, row, mstat,
-                        ia, ib, True, ct, cf, cfp)
+    inside, ne = settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FH, FP, row, mstat, ia, ib, True,
+                        ct, cf, cfp)
     return inside, nev + ne
 
 
 @kernel
-def settle(seg, hprim, hrec, sarr, ns, px, py, t, m, inv_s2, norm, scratch, F, FH, FP, row, mstat, ia, ib,
-           keep_sign, ct, cf, cfp):
+def settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FH, FP, row, mstat, ia, ib, keep_sign, ct, cf, cfp):
     """The class ``F(t) >= 1`` of the point of ``row``, evaluating its
     unknown primitives widest bound first until the summed bound clears 1 by
     the pad (or every value is known: then the in-order sum decides).
@@ -131,7 +133,7 @@ def settle(seg, hprim, hrec, sarr, ns, px, py, t, m, inv_s2, norm, scratch, F, F
             return True, nev
         if hi < 1.0 - pad:
             return False, nev
-        f, fp, ne = eval_z(seg, hprim, hrec, sarr[smax], px, py, t, m, inv_s2, norm, scratch, ct, cf, cfp)
+        f, fp, ne = eval_dir(seg, hprim, hrec, sarr[smax], ray, t, kp, scratch, ct, cf, cfp)
         nev += ne
         F[row, smax] = f
         FH[row, smax] = f
@@ -173,13 +175,20 @@ def bound_at(hrec, r, t, ct, cf, cfp):
 
 
 @kernel
-def lazy_ends(seg, hprim, hrec, sarr, ns, px, py, ta, tb, m, inv_s2, norm, scratch, F, FH, FP, ia, ib, mstat,
-              ct, cf, cfp):
+def lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, F, FH, FP, ia, ib, mstat, ct, cf, cfp):
     """Rows ``ia``/``ib`` at the ends of the piece ``[ta, tb]`` from
     :func:`bound_at`, then exact values for the primitives with the widest
     bounds, one primitive at a time, until the piece's bound
     (:func:`slicer._kernels.rays.piece_bounds_iv`) clears 1 by the pad or
-    every end value is known. Returns the evaluations done."""
+    every end value is known.
+
+    Returns
+    -------
+    settled : bool
+        The piece's bound clears 1: it holds no crossing.
+    nev : int
+        Evaluations done.
+    """
     for s in range(ns):
         r = sarr[s]
         F[ia, s], FH[ia, s], FP[ia, s] = bound_at(hrec, r, ta, ct, cf, cfp)
@@ -189,7 +198,7 @@ def lazy_ends(seg, hprim, hrec, sarr, ns, px, py, ta, tb, m, inv_s2, norm, scrat
         lo, hi, _ = piece_bounds_iv(hrec, sarr, ns, F, FH, FP, ia, ib, ta, tb, False, mstat)
         pad = PAD * (1.0 + abs(hi))
         if lo > 1.0 + pad or hi < 1.0 - pad:
-            return nev
+            return True, nev
         best = -1
         wbest = -1.0
         for s in range(ns):
@@ -198,20 +207,39 @@ def lazy_ends(seg, hprim, hrec, sarr, ns, px, py, ta, tb, m, inv_s2, norm, scrat
                 wbest = w
                 best = s
         if best < 0:
-            return nev
+            return False, nev
         r = sarr[best]
         if F[ia, best] != FH[ia, best]:
-            f, fp, ne = eval_z(seg, hprim, hrec, r, px, py, ta, m, inv_s2, norm, scratch, ct, cf, cfp)
+            f, fp, ne = eval_dir(seg, hprim, hrec, r, ray, ta, kp, scratch, ct, cf, cfp)
             F[ia, best] = f
             FH[ia, best] = f
             FP[ia, best] = fp
             nev += ne
         if F[ib, best] != FH[ib, best]:
-            f, fp, ne = eval_z(seg, hprim, hrec, r, px, py, tb, m, inv_s2, norm, scratch, ct, cf, cfp)
+            f, fp, ne = eval_dir(seg, hprim, hrec, r, ray, tb, kp, scratch, ct, cf, cfp)
             F[ib, best] = f
             FH[ib, best] = f
             FP[ib, best] = fp
             nev += ne
 
 
-__all__ = ["split_lazy", "settle", "bound_at", "lazy_ends", "eval_z", "M_INC", "M_DEC", "M_ZERO", "M_AMBIGUOUS"]
+@kernel
+def complete_row(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FH, FP, row, ct, cf, cfp):
+    """Exact values in ``row`` at ``t`` for every primitive still bounded
+    there (known ones are kept: an earlier evaluation at the same t gave
+    them); returns ``(sum, evaluations)``, the sum in
+    :func:`slicer._kernels.rays.eval_along`'s order, so its value too."""
+    tot = 0.0
+    nev = 0
+    for s in range(ns):
+        if F[row, s] != FH[row, s]:
+            f, fp, ne = eval_dir(seg, hprim, hrec, sarr[s], ray, t, kp, scratch, ct, cf, cfp)
+            nev += ne
+            F[row, s] = f
+            FH[row, s] = f
+            FP[row, s] = fp
+        tot += F[row, s]
+    return tot, nev
+
+
+__all__ = ["complete_row", "split_lazy", "settle", "bound_at", "lazy_ends", "eval_dir", "M_INC", "M_DEC", "M_ZERO", "M_AMBIGUOUS"]

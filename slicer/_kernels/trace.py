@@ -160,6 +160,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     zlo = z0 - 0.5 * h
     zhi = z0 + (K - 0.5) * h
     lazy = not spans and not strict
+    ray = (px, py, 0.0, 0.0, 0.0, 1.0)
+    kp = (m, inv_s2, norm)
     cur = st_f.shape[0] - 1     # row of the values at the current point (stack slots below it)
     nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
     for r in range(nh):
@@ -218,8 +220,9 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     continue
                 if lazy:
                     # the ends' values only as far as the piece's verdict needs them
-                    nev += lazy_ends(seg, hprim, hrec, sarr, ns, px, py, ta, tb, m, inv_s2, norm, scratch,
-                                     st_f, st_fh, st_fp, cur, 0, mstat, ct, cf, cfp)
+                    _, ne1 = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, st_f, st_fh, st_fp,
+                                       cur, 0, mstat, ct, cf, cfp)
+                    nev += ne1
                     fcur = 0.0
                     for s in range(ns):
                         fcur += st_f[cur, s]
@@ -303,9 +306,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             # far as its class needs)
                             in0 = fcur >= 1.0
                             if lazy:
-                                in0, ne1 = settle(seg, hprim, hrec, sarr, ns, px, py, tcur, m, inv_s2, norm,
-                                                  scratch, st_f, st_fh, st_fp, cur, mstat, cur, p, False,
-                                                  ct, cf, cfp)
+                                in0, ne1 = settle(seg, hprim, hrec, sarr, ns, ray, tcur, kp, scratch, st_f, st_fh,
+                                                  st_fp, cur, mstat, cur, p, False, ct, cf, cfp)
                                 nev += ne1
                             nrun = _emit(q0, q0, in0, rk0, rk1, nrun, cap)
                             st_k0[p] = q0 + 1
@@ -354,8 +356,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     # right part keeps slot p (its right-end data are already there)
                     st_k0[p] = km + 1
                     if lazy:
-                        inm, ne1 = split_lazy(seg, hprim, hrec, sarr, ns, px, py, zm, m, inv_s2, norm, scratch,
-                                              st_f, st_fh, st_fp, cur, p, p + 2, mstat, ct, cf, cfp)
+                        inm, ne1 = split_lazy(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, st_f, st_fh, st_fp,
+                                              cur, p, p + 2, mstat, ct, cf, cfp)
                     else:
                         fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, zm, m,
                                              inv_s2, norm, scratch, st_f, st_fp, p + 2, ct, cf, cfp)
