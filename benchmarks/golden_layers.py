@@ -22,6 +22,12 @@ import sys
 
 import numpy as np
 
+import slicer
+from sample_lattices import SAMPLES, load_sample
+from slicer.grid import make_grid
+from slicer.slicing import trace
+from validation.stiff import CASES
+
 PIXELS = 160
 LAYERS = 160
 
@@ -36,9 +42,6 @@ def runs_hash(res) -> str:
 
 def sample_cases():
     """``(name, skeleton, grid, strict)`` of every sample, plain and strict."""
-    from sample_lattices import SAMPLES, load_sample
-    from slicer.grid import make_grid
-
     for name in sorted(SAMPLES):
         skel = load_sample(name)
         lo, hi = skel.support_bounds()
@@ -53,9 +56,6 @@ def sample_cases():
 
 def stiff_cases():
     """``(name, skeleton, grid, False)`` of every stiff-suite case at its fast size."""
-    from slicer.grid import make_grid
-    from validation.stiff import CASES
-
     for case in CASES:
         st = case.build(True)
         grid = make_grid(st.skel.support_bounds(), st.pixel_size, layer_height=st.layer_height, bounds=st.bounds)
@@ -64,8 +64,6 @@ def stiff_cases():
 
 def compute(names=None) -> dict:
     """Name -> {"grid": [w, h, layers], "runs": n, "sha256": hex} for the tree on ``sys.path``."""
-    from slicer.slicing import trace
-
     out = {}
     for gen in (sample_cases, stiff_cases):
         for name, skel, grid, strict in gen():
@@ -84,8 +82,6 @@ def main(argv=None) -> int:
     g.add_argument("--check", help="Compare with this file; exit 1 on a difference.")
     args = ap.parse_args(argv)
     if args.out:
-        import slicer
-
         doc = {"what": "sha256 of the interval tracer's runs (pix, k0, k1 as <i8)",
                "pixels": PIXELS, "layers": LAYERS, "skelslice": slicer.__version__, "cases": compute()}
         with open(args.out, "w", encoding="utf-8") as fh:

@@ -10,7 +10,12 @@ import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from sample_lattices import SAMPLES
+from slicer.slicing import SliceResult
+from validation.stiff import CASE_NAMES
 
 ROOT = Path(__file__).resolve().parent.parent
 REF = json.loads((ROOT / "tests" / "data" / "golden_layers.json").read_text())
@@ -24,9 +29,6 @@ def _golden():
 
 
 def test_reference_covers_samples_and_stiff_suite():
-    from sample_lattices import SAMPLES
-    from validation.stiff import CASE_NAMES
-
     names = set(REF["cases"])
     assert {f"sample:{s}" for s in SAMPLES} | {f"sample:{s}:strict" for s in SAMPLES} <= names
     assert {f"stiff:{c}" for c in CASE_NAMES} <= names
@@ -44,10 +46,6 @@ def test_layers_identical_to_0_1_0(now, name):
 
 def test_hash_sees_one_voxel():
     g = _golden()
-    from slicer.slicing import SliceResult
-
-    import numpy as np
-
     a = SliceResult(None, np.array([3]), np.array([1]), np.array([5]))
     b = SliceResult(None, np.array([3]), np.array([1]), np.array([6]))
     assert g.runs_hash(a) != g.runs_hash(b)
