@@ -62,14 +62,15 @@ def stiff_cases():
         yield f"stiff:{case.name}", st.skel, grid, False
 
 
-def compute(names=None) -> dict:
-    """Name -> {"grid": [w, h, layers], "runs": n, "sha256": hex} for the tree on ``sys.path``."""
+def compute(names=None, **kwargs) -> dict:
+    """Name -> {"grid": [w, h, layers], "runs": n, "sha256": hex} for the tree on ``sys.path``
+    (``kwargs``: more options of ``trace``, e.g. ``lazy=True``)."""
     out = {}
     for gen in (sample_cases, stiff_cases):
         for name, skel, grid, strict in gen():
             if names is not None and name not in names:
                 continue
-            res = trace(skel, grid, method="interval", bucket=64, strict=strict)
+            res = trace(skel, grid, method="interval", bucket=64, strict=strict, **kwargs)
             out[name] = {"grid": [grid.width, grid.height, grid.layers], "runs": res.n_runs,
                          "sha256": runs_hash(res)}
     return out

@@ -172,7 +172,7 @@ def coverage_layers(span_pix: np.ndarray, u0: np.ndarray, u1: np.ndarray, layers
 
 def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int = 64,
           threads: int | None = None, strict: bool = False, cut_support: bool = True,
-          batch: int = 256, spans: bool = False, span_tol: float | None = None) -> SliceResult:
+          batch: int = 256, spans: bool = False, span_tol: float | None = None, lazy: bool = False) -> SliceResult:
     """Classify every voxel centre of ``grid`` (no trimming).
 
     Parameters
@@ -200,6 +200,10 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
     span_tol : float, optional, mm
         Position tolerance of the span ends (default ``layer_height / 64``;
         at least ``layer_height / 65536``).
+    lazy : bool
+        Interval method: the lazy walk (docs/math.md §5.4): the same voxels
+        with about half the primitive evaluations, but more bookkeeping per
+        piece (slower today on the samples; see docs/benchmarks.md).
     """
     if method not in METHODS:
         raise GridError(f"unknown method {method!r}; choose one of {sorted(METHODS)}")
@@ -222,7 +226,7 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
             chunk = thread_order(todo[s:s + batch], sizes[todo[s:s + batch]], nthreads)
             cap = B * B * 4
             results = _run_batch(trace_buckets, METHODS[method], chunk, bk, grid, n, sigma, norm,
-                                 kmax, strict, cut_support, cap, RUNS_FULL, spans, span_tol)
+                                 kmax, strict, cut_support, cap, RUNS_FULL, spans, span_tol, lazy)
             for bidx, nrun, rk0, rk1, ne, nx, xz in results:
                 nevals += ne
                 by, bx = divmod(int(bidx), bk.nbx)
@@ -293,7 +297,7 @@ def _pair_crossings(grid: SliceGrid, xpix_parts, xz_parts):
 
 
 def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, kmax, strict,
-               cut_support, cap, RUNS_FULL, spans=False, span_tol=None):
+               cut_support, cap, RUNS_FULL, spans=False, span_tol=None, lazy=False):
     """Run the kernel on a batch of buckets, retrying overflowing ones with more room.
 
     Returns, per bucket, ``(bucket, runs per ray, k0, k1, evaluations,
@@ -317,7 +321,7 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
             kern(code, pending, bk.nbx, B, grid.width, grid.height, bk.offsets, bk.ids, bk.table,
                  bk.boxes, grid.origin[0], grid.origin[1], grid.pixel_size[0],
                  grid.pixel_size[1], grid.origin[2], grid.layer_height, grid.layers, n, sigma, norm,
-                 kmax, strict, cut_support, bk.longest(), cap, ray_nrun, run_k0, run_k1, stats,
+                 kmax, strict, cut_support, lazy, bk.longest(), cap, ray_nrun, run_k0, run_k1, stats,
                  spans, span_tol if spans else 0.0, xcap, ray_nx, cross_z)
         retry = []
         for q in range(nb):

@@ -44,6 +44,16 @@ def test_layers_identical_to_0_1_0(now, name):
     assert now[name] == REF["cases"][name]
 
 
+@pytest.fixture(scope="module")
+def now_lazy():
+    return _golden().compute(lazy=True)
+
+
+@pytest.mark.parametrize("name", sorted(REF["cases"]))
+def test_lazy_walk_layers_identical_to_0_1_0(now_lazy, name):
+    assert now_lazy[name] == REF["cases"][name]
+
+
 def test_hash_sees_one_voxel():
     g = _golden()
     a = SliceResult(None, np.array([3]), np.array([1]), np.array([5]))

@@ -12,10 +12,12 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from sample_lattices import load_sample
 from slicer._kernels.field import SCRATCH
 from slicer._kernels.lazy import bound_at, eval_dir
 from slicer._kernels.rays import piece_bounds_iv
 from slicer._kernels.raysupport import H_TIN, H_TOUT
+from slicer.render import render
 from test_ray_unimodal import rays
 
 #: rounding slack of the compiled field relative to the ray's peak
@@ -31,7 +33,7 @@ def _setup(ray, u):
     cf = np.zeros(1)
     cfp = np.zeros(1)
     kp = (s.degree // 2, 1.0 / s.sigma ** 2, s.normalisation)
-    eval_dir(ray.seg, np.zeros(1, np.int64), rec, 0, (*ray.o, *ray.d), tc, kp, np.empty(SCRATCH), ct, cf, cfp)
+    eval_dir(ray.seg, np.zeros(1, np.int64), rec, 0, (*ray.o, *ray.d), tc, kp, np.empty(SCRATCH), (ct, cf, cfp))
     return tin, tout, tc, ct, cf, cfp
 
 
@@ -46,7 +48,7 @@ def test_bounds_from_one_evaluation_hold(case, u, a, w):
     f = ray.field(t)
     scale = SLACK * max(f.max(), cf[0], 1e-300)
     for ti, fi in zip(t, f):
-        lo, hi, fp = bound_at(ray.rec, 0, ti, ct, cf, cfp)
+        lo, hi, fp = bound_at(ray.rec, 0, ti, (ct, cf, cfp))
         assert lo - scale <= fi <= hi + scale, (ti, fi, lo, hi, tc, ray.describe())
     # a piece [ta, tb] with both ends bounded (not evaluated): its bound holds every sample on it
     ta = tin + a * (tout - tin)
@@ -57,7 +59,7 @@ def test_bounds_from_one_evaluation_hold(case, u, a, w):
     FH = np.zeros((2, 1))
     FP = np.zeros((2, 1))
     for row, tt in enumerate((ta, tb)):
-        F[row, 0], FH[row, 0], FP[row, 0] = bound_at(ray.rec, 0, tt, ct, cf, cfp)
+        F[row, 0], FH[row, 0], FP[row, 0] = bound_at(ray.rec, 0, tt, (ct, cf, cfp))
     mstat = np.zeros(1, np.int64)
     lo, hi, mono = piece_bounds_iv(ray.rec, np.zeros(1, np.int64), 1, F, FH, FP, 0, 1, ta, tb, False, mstat)
     tp = np.linspace(ta, tb, 301)
@@ -66,3 +68,14 @@ def test_bounds_from_one_evaluation_hold(case, u, a, w):
     if mono != 0:
         d = np.diff(fpiece)
         assert np.all(mono * d >= -scale), (ta, tb, mono, tc, ray.describe())
+
+
+def test_lazy_render_is_the_eager_render():
+    """The renderer's lazy walk skips only pieces free of crossings: same image, crossings, roots."""
+    for name in ("octet_2x2x2", "jellyfish"):
+        s = load_sample(name)
+        a = render(s, size=(64, 64), keep_roots=True, threads=2)
+        b = render(s, size=(64, 64), keep_roots=True, threads=2, lazy=True)
+        assert np.array_equal(a.rgba, b.rgba) and np.array_equal(a.count, b.count)
+        assert np.array_equal(a.roots, b.roots)
+        assert b.stats["evaluations"] < a.stats["evaluations"]

@@ -15,26 +15,29 @@ primitive ends up evaluated the class is ``sum >= 1`` with the sum taken in
 the same order as :func:`slicer._kernels.rays.eval_along`, so verdicts are
 those of the eager walk.
 
-Rows of ``F`` (lower bounds), ``FH`` (upper bounds) and ``FP`` (slopes) are
-the tracer's stack rows (:func:`slicer._kernels.rays.walk_buffers`).
+``rows = (F, FH, FP)``: per-primitive lower bounds, upper bounds and slopes,
+one row per stack slot (:func:`slicer._kernels.rays.walk_buffers`);
+``cache = (ct, cf, cfp)``: each hit's last evaluation (t, f, f').
 """
 from __future__ import annotations
 
-from .._jit import kernel
+from .._jit import inline_kernel, kernel
 from .field import segment_eval
-from .rays import PAD, piece_bounds_iv
+from .rays import PAD, piece_bounds_iv, prim_bound
 from .raysupport import H_FMAX, H_TIN, H_TOUT
 
 #: kinds written by piece_bounds_iv into ``mstat``
 M_INC, M_DEC, M_ZERO, M_AMBIGUOUS = 1, -1, 0, 2
 
 
-@kernel
-def eval_dir(seg, hprim, hrec, r, ray, t, kp, scratch, ct, cf, cfp):
+@inline_kernel
+def eval_dir(seg, hprim, hrec, r, ray, t, kp, scratch, cache):
     """Value and directional slope of hit ``r`` at ``o + t d``
     (``ray = (ox, oy, oz, dx, dy, dz)``, ``kp = (m, 1/sigma^2, N)``), computed
     as :func:`slicer._kernels.rays.eval_along` does (same cache, zero outside
-    the open support interval); returns ``(f, f', evaluations)``."""
+    the open support interval; ``cache = (ct, cf, cfp)``, each hit's last
+    evaluation); returns ``(f, f', evaluations)``."""
+    ct, cf, cfp = cache
     if not (t > hrec[r, H_TIN] and t < hrec[r, H_TOUT]):
         return 0.0, 0.0, 0
     if ct[r] == t:
@@ -50,7 +53,7 @@ def eval_dir(seg, hprim, hrec, r, ray, t, kp, scratch, ct, cf, cfp):
     return f, fp, 1
 
 
-@kernel
+@inline_kernel
 def _carry(F, FH, FP, ia, ib, row, s, kind):
     """Write the bound of monotone / zero primitive ``s`` at a split point
     between rows ``ia`` and ``ib`` into ``row``."""
@@ -68,7 +71,7 @@ def _carry(F, FH, FP, ia, ib, row, s, kind):
         FP[row, s] = 0.0
 
 
-@kernel
+@inline_kernel
 def _sums(F, FH, row, ns):
     """Summed lower and upper bounds of a row, and the index of the widest
     not yet evaluated bound (-1 when every value is known)."""
@@ -88,7 +91,7 @@ def _sums(F, FH, row, ns):
 
 
 @kernel
-def split_lazy(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FH, FP, ia, ib, row, mstat, ct, cf, cfp):
+def split_lazy(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, ia, ib, row, mstat, cache):
     """Bounds at the split point ``t`` of the piece between rows ``ia`` and
     ``ib`` into ``row``, and the class of ``t``.
 
@@ -99,30 +102,31 @@ def split_lazy(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FH, FP, ia, i
     nev : int
         Primitive evaluations done.
     """
+    F, FH, FP = rows
     nev = 0
     for s in range(ns):
         k = mstat[s]
         if k == M_AMBIGUOUS:
-            f, fp, ne = eval_dir(seg, hprim, hrec, sarr[s], ray, t, kp, scratch, ct, cf, cfp)
+            f, fp, ne = eval_dir(seg, hprim, hrec, sarr[s], ray, t, kp, scratch, cache)
             nev += ne
             F[row, s] = f
             FH[row, s] = f
             FP[row, s] = fp
         else:
             _carry(F, FH, FP, ia, ib, row, s, k)
-    inside, ne = settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FH, FP, row, mstat, ia, ib, True,
-                        ct, cf, cfp)
+    inside, ne = settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, row, mstat, ia, ib, True, cache)
     return inside, nev + ne
 
 
 @kernel
-def settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FH, FP, row, mstat, ia, ib, keep_sign, ct, cf, cfp):
+def settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, row, mstat, ia, ib, keep_sign, cache):
     """The class ``F(t) >= 1`` of the point of ``row``, evaluating its
     unknown primitives widest bound first until the summed bound clears 1 by
     the pad (or every value is known: then the in-order sum decides).
     With ``keep_sign``, an evaluated monotone primitive (``mstat``) keeps the
     slope sign of its stretch (rows ``ia``/``ib``) if rounding flattened it.
     Returns ``(inside, evaluations)``."""
+    F, FH, FP = rows
     nev = 0
     while True:
         lo, hi, smax = _sums(F, FH, row, ns)
@@ -133,7 +137,7 @@ def settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FH, FP, row, msta
             return True, nev
         if hi < 1.0 - pad:
             return False, nev
-        f, fp, ne = eval_dir(seg, hprim, hrec, sarr[smax], ray, t, kp, scratch, ct, cf, cfp)
+        f, fp, ne = eval_dir(seg, hprim, hrec, sarr[smax], ray, t, kp, scratch, cache)
         nev += ne
         F[row, smax] = f
         FH[row, smax] = f
@@ -146,8 +150,8 @@ def settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FH, FP, row, msta
         FP[row, smax] = fp
 
 
-@kernel
-def bound_at(hrec, r, t, ct, cf, cfp):
+@inline_kernel
+def bound_at(hrec, r, t, cache):
     """Bound of hit ``r`` at ``t`` without evaluating it: exact outside its
     open support interval (0) and where it was last evaluated (tc); else,
     by unimodality along the ray, ``[0, f(tc)]`` where the slope at tc
@@ -162,6 +166,7 @@ def bound_at(hrec, r, t, ct, cf, cfp):
         unknown (then :func:`slicer._kernels.rays.piece_bounds_iv` never
         calls it monotone).
     """
+    ct, cf, cfp = cache
     if not (t > hrec[r, H_TIN] and t < hrec[r, H_TOUT]):
         return 0.0, 0.0, 0.0
     tc = ct[r]
@@ -175,7 +180,7 @@ def bound_at(hrec, r, t, ct, cf, cfp):
 
 
 @kernel
-def lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, F, FH, FP, ia, ib, mstat, ct, cf, cfp):
+def lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, ia, ib, mstat, cache):
     """Rows ``ia``/``ib`` at the ends of the piece ``[ta, tb]`` from
     :func:`bound_at`, then exact values for the primitives with the widest
     bounds, one primitive at a time, until the piece's bound
@@ -189,16 +194,21 @@ def lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, F, FH, FP, i
     nev : int
         Evaluations done.
     """
+    F, FH, FP = rows
     for s in range(ns):
         r = sarr[s]
-        F[ia, s], FH[ia, s], FP[ia, s] = bound_at(hrec, r, ta, ct, cf, cfp)
-        F[ib, s], FH[ib, s], FP[ib, s] = bound_at(hrec, r, tb, ct, cf, cfp)
+        F[ia, s], FH[ia, s], FP[ia, s] = bound_at(hrec, r, ta, cache)
+        F[ib, s], FH[ib, s], FP[ib, s] = bound_at(hrec, r, tb, cache)
+    lo, hi, _ = piece_bounds_iv(hrec, sarr, ns, F, FH, FP, ia, ib, ta, tb, False, mstat)
     nev = 0
     while True:
-        lo, hi, _ = piece_bounds_iv(hrec, sarr, ns, F, FH, FP, ia, ib, ta, tb, False, mstat)
         pad = PAD * (1.0 + abs(hi))
         if lo > 1.0 + pad or hi < 1.0 - pad:
-            return True, nev
+            # the running sums only steer; the verdict is the full sum's
+            lo, hi, _ = piece_bounds_iv(hrec, sarr, ns, F, FH, FP, ia, ib, ta, tb, False, mstat)
+            pad = PAD * (1.0 + abs(hi))
+            if lo > 1.0 + pad or hi < 1.0 - pad:
+                return True, nev
         best = -1
         wbest = -1.0
         for s in range(ns):
@@ -209,31 +219,33 @@ def lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, F, FH, FP, i
         if best < 0:
             return False, nev
         r = sarr[best]
-        if F[ia, best] != FH[ia, best]:
-            f, fp, ne = eval_dir(seg, hprim, hrec, r, ray, ta, kp, scratch, ct, cf, cfp)
-            F[ia, best] = f
-            FH[ia, best] = f
-            FP[ia, best] = fp
-            nev += ne
-        if F[ib, best] != FH[ib, best]:
-            f, fp, ne = eval_dir(seg, hprim, hrec, r, ray, tb, kp, scratch, ct, cf, cfp)
-            F[ib, best] = f
-            FH[ib, best] = f
-            FP[ib, best] = fp
-            nev += ne
+        a0, b0, _ = prim_bound(hrec, r, F[ia, best], F[ib, best], FH[ia, best], FH[ib, best], FP[ia, best],
+                               FP[ib, best], ta, tb, False)
+        for row, t in ((ia, ta), (ib, tb)):
+            if F[row, best] != FH[row, best]:
+                f, fp, ne = eval_dir(seg, hprim, hrec, r, ray, t, kp, scratch, cache)
+                F[row, best] = f
+                FH[row, best] = f
+                FP[row, best] = fp
+                nev += ne
+        a1, b1, _ = prim_bound(hrec, r, F[ia, best], F[ib, best], FH[ia, best], FH[ib, best], FP[ia, best],
+                               FP[ib, best], ta, tb, False)
+        lo += a1 - a0
+        hi += b1 - b0
 
 
 @kernel
-def complete_row(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FH, FP, row, ct, cf, cfp):
+def complete_row(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, row, cache):
     """Exact values in ``row`` at ``t`` for every primitive still bounded
     there (known ones are kept: an earlier evaluation at the same t gave
     them); returns ``(sum, evaluations)``, the sum in
     :func:`slicer._kernels.rays.eval_along`'s order, so its value too."""
+    F, FH, FP = rows
     tot = 0.0
     nev = 0
     for s in range(ns):
         if F[row, s] != FH[row, s]:
-            f, fp, ne = eval_dir(seg, hprim, hrec, sarr[s], ray, t, kp, scratch, ct, cf, cfp)
+            f, fp, ne = eval_dir(seg, hprim, hrec, sarr[s], ray, t, kp, scratch, cache)
             nev += ne
             F[row, s] = f
             FH[row, s] = f

@@ -86,13 +86,6 @@ def _emit(k0, k1, inside, rk0, rk1, nrun, cap):
 
 
 @kernel
-def _exact_row(F, FH, row, ns):
-    """Row ``row`` holds known values: upper bounds = lower bounds."""
-    for s in range(ns):
-        FH[row, s] = F[row, s]
-
-
-@kernel
 def _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order):
     """Hit records of the bucket's segments ids[i0:i1] with the vertical ray
     at (px, py), kept if they reach [zlo, zhi]; returns the count, sorted by t_in
@@ -127,7 +120,7 @@ def _cluster_field(seg, hprim, hrec, order, a, b, px, py, z, m, inv_s2, norm, sc
 
 
 @kernel
-def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict, cut_support,
+def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict, cut_support, lazy,
                        scratch, hprim, hrec, order, bps, sarr, st_f, st_fh, st_fp, mstat,
                        st_kind, st_t, st_k0, st_k1, ct, cf, cfp, rk0, rk1, cap, spans, span_tol, cz, xcap):
     """Classify the K voxel centres of one ray (interval method).
@@ -141,7 +134,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     alternate entry / exit. A ray inside at the grid's bottom (or top)
     gets a crossing exactly there.
 
-    Without spans and ``strict``, split points are lazy
+    With ``lazy`` (and neither spans nor ``strict``), the walk is lazy
     (:func:`slicer._kernels.lazy.split_lazy`): ``st_f`` / ``st_fh`` hold
     per-primitive lower / upper bounds, equal where the value is known.
 
@@ -159,9 +152,12 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     inv_s2 = 1.0 / (sigma * sigma)
     zlo = z0 - 0.5 * h
     zhi = z0 + (K - 0.5) * h
-    lazy = not spans and not strict
+    lazy = lazy and not spans and not strict
     ray = (px, py, 0.0, 0.0, 0.0, 1.0)
     kp = (m, inv_s2, norm)
+    rows = (st_f, st_fh, st_fp)
+    fh = st_fh if lazy else st_f     # eager: every bound is a value
+    cache = (ct, cf, cfp)
     cur = st_f.shape[0] - 1     # row of the values at the current point (stack slots below it)
     nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
     for r in range(nh):
@@ -220,8 +216,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     continue
                 if lazy:
                     # the ends' values only as far as the piece's verdict needs them
-                    _, ne1 = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, st_f, st_fh, st_fp,
-                                       cur, 0, mstat, ct, cf, cfp)
+                    _, ne1 = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, cur, 0, mstat,
+                                       cache)
                     nev += ne1
                     fcur = 0.0
                     for s in range(ns):
@@ -231,8 +227,6 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                                            inv_s2, norm, scratch, st_f, st_fp, cur, ct, cf, cfp)
                     _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, tb, m, inv_s2,
                                         norm, scratch, st_f, st_fp, 0, ct, cf, cfp)
-                    _exact_row(st_f, st_fh, cur, ns)
-                    _exact_row(st_f, st_fh, 0, ns)
                     nev += ne1 + ne2
                 if spans and (fcur >= 1.0) != inside:
                     # only after a skipped stretch (below the grid): enter here
@@ -262,7 +256,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     if q1 < q0 and not spans:
                         done = True
                     else:
-                        lo, hi, mono = piece_bounds_iv(hrec, sarr, ns, st_f, st_fh, st_fp, cur, p,
+                        lo, hi, mono = piece_bounds_iv(hrec, sarr, ns, st_f, fh, st_fp, cur, p,
                                                        tcur, e_t, strict, mstat)
                         pad = PAD * (1.0 + abs(hi))
                         if lo > 1.0 + pad:
@@ -293,7 +287,6 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                                 fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ts,
                                                      m, inv_s2, norm, scratch, st_f, st_fp, p + 1,
                                                      ct, cf, cfp)
-                                _exact_row(st_f, st_fh, p + 1, ns)
                                 nev += ne1
                                 st_kind[p + 1] = 0
                                 st_t[p + 1] = ts
@@ -306,8 +299,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             # far as its class needs)
                             in0 = fcur >= 1.0
                             if lazy:
-                                in0, ne1 = settle(seg, hprim, hrec, sarr, ns, ray, tcur, kp, scratch, st_f, st_fh,
-                                                  st_fp, cur, mstat, cur, p, False, ct, cf, cfp)
+                                in0, ne1 = settle(seg, hprim, hrec, sarr, ns, ray, tcur, kp, scratch, rows, cur,
+                                                  mstat, cur, p, False, cache)
                                 nev += ne1
                             nrun = _emit(q0, q0, in0, rk0, rk1, nrun, cap)
                             st_k0[p] = q0 + 1
@@ -356,12 +349,11 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     # right part keeps slot p (its right-end data are already there)
                     st_k0[p] = km + 1
                     if lazy:
-                        inm, ne1 = split_lazy(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, st_f, st_fh, st_fp,
-                                              cur, p, p + 2, mstat, ct, cf, cfp)
+                        inm, ne1 = split_lazy(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, rows, cur, p, p + 2,
+                                              mstat, cache)
                     else:
                         fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, zm, m,
                                              inv_s2, norm, scratch, st_f, st_fp, p + 2, ct, cf, cfp)
-                        _exact_row(st_f, st_fh, p + 2, ns)
                         inm = fm >= 1.0
                     nev += ne1
                     st_kind[p + 1] = 1
@@ -485,7 +477,7 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
 
 @parallel_kernel
 def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
-                  x0, y0, pxs, pys, z0, h, K, n, sigma, norm, kmax, strict, cut_support, max_list,
+                  x0, y0, pxs, pys, z0, h, K, n, sigma, norm, kmax, strict, cut_support, lazy, max_list,
                   cap, ray_nrun, run_k0, run_k1, stats, spans, span_tol, xcap, ray_nx, cross_z):
     """Trace every ray of the given buckets in parallel.
 
@@ -518,6 +510,9 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
         Runs of all the bucket's rays, ray after ray.
     stats : (nb, 2) int64, out
         [status, primitive evaluations] per bucket.
+    lazy : bool
+        Interval method: the lazy walk (docs/math.md §5.4; same voxels,
+        fewer evaluations).
     spans : bool
         Interval method: also locate every crossing to ``span_tol`` (mm).
     xcap : int
@@ -563,7 +558,8 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                 nx = 0
                 if method == 0:
                     nr, ne, nx = trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
-                                                    kmax, strict, cut_support, scratch, hprim, hrec, order, bps,
+                                                    kmax, strict, cut_support, lazy, scratch, hprim, hrec, order,
+                                                    bps,
                                                     sarr, st_f, st_fh, st_fp, mstat, st_kind, st_t, st_k0,
                                                     st_k1, ct, cf, cfp, rk0, rk1, room, spans, span_tol,
                                                     cross_z[q, xused:], xcap - xused)
