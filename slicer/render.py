@@ -455,7 +455,7 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
     threads : int, optional
         Numba threads (default: all). The output does not depend on it.
     lazy : bool
-        Skip pieces whose lazy bound (docs/math.md §5.4) proves them free of
+        Skip pieces whose lazy bound (docs/math.md §5.5) proves them free of
         crossings; the image is the same, with fewer evaluations.
     """
 

@@ -26,6 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
+from slicer.errors import GridError
+
+from .bench import square_bounds
+
 #: slack for floating-point noise in distance checks, mm
 SLACK = 1e-9
 
@@ -42,6 +46,19 @@ def pick_layers(result, n: int) -> list[int]:
         return [int(k) for k in ks]
     pos = np.linspace(0, ks.size - 1, n + 2)[1:-1]
     return sorted({int(ks[int(round(p))]) for p in pos})
+
+
+def default_pitch(skel, pixel_size, pixels: int, bounds):
+    """``(pixel_size, bounds)`` of a validation: without ``pixel_size``, a
+    ``pixels`` x ``pixels`` image over the model's support box (and that
+    square box as the bounds unless given)."""
+    if pixel_size is None:
+        if int(pixels) < 2:
+            raise GridError(f"pixels must be >= 2, got {pixels}")
+        sq, pixel_size = square_bounds(skel, int(pixels))
+        if bounds is None:
+            bounds = sq
+    return pixel_size, bounds
 
 
 def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_size_y=None,
@@ -68,7 +85,8 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
     max_hausdorff : float, optional, mm
     min_iou : float, optional
     blend : {"sum", "union"}
-        Passed to the slicer (which traces ``sum`` only, for now).
+        Passed to the slicer. The reference and the contour metrics are those of the
+        summed field, so ``skelslice validate`` refuses ``union``.
 
     Returns
     -------
@@ -79,20 +97,13 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
     """
     from slicer.contours import layer_contours, layer_mask
     from slicer.checks import positive_number
-    from slicer.errors import GridError
     from slicer.slicing import slice_skeleton
 
-    from .bench import square_bounds
     from .metrics import compare_layer, contour_error_bound, polygon_rings, summarise
     from .reference_mesh import reference_sections
 
     tol = positive_number(tol, "contour tolerance", GridError)
-    if pixel_size is None:
-        if int(pixels) < 2:
-            raise GridError(f"pixels must be >= 2, got {pixels}")
-        sq, pixel_size = square_bounds(skel, int(pixels))
-        if bounds is None:
-            bounds = sq
+    pixel_size, bounds = default_pitch(skel, pixel_size, pixels, bounds)
     t0 = time.perf_counter()
     res = slice_skeleton(skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict,
                          blend=blend)

@@ -511,7 +511,7 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
     stats : (nb, 2) int64, out
         [status, primitive evaluations] per bucket.
     lazy : bool
-        Interval method: the lazy walk (docs/math.md §5.4; same voxels,
+        Interval method: the lazy walk (docs/math.md §5.5; same voxels,
         fewer evaluations).
     spans : bool
         Interval method: also locate every crossing to ``span_tol`` (mm).
