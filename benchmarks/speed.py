@@ -20,7 +20,7 @@ Jobs (full size; ``--quick`` shrinks every one to a smoke test of a few seconds)
     Trace only (``slicer.slicing.trace``): the sample microstructure at
     512 x 512 x 1024, the jellyfish at 512 x 512 x 1024 and x 2048.
 ``render_micro``, ``render_jelly``
-    ``slicer.render.render`` of the samples at 700 x 700, iso view.
+    ``slicer.rendering.render`` of the samples at 700 x 700, iso view.
 
 Every job runs in a fresh subprocess with ``PYTHONPATH`` set to the tree
 under test and a neutral working folder, so ``--baseline`` compares two
@@ -82,9 +82,20 @@ def _worker_trace(name: str, pixels: int, layers: int, threads: int) -> dict:
             "runs": res.n_runs, "grid": [grid.width, grid.height, grid.layers]}
 
 
+def _render_function():
+    """``render`` of the tree under test (``slicer.rendering``; ``slicer.render`` in 0.1.0)."""
+    import importlib
+
+    try:
+        return importlib.import_module("slicer.rendering").render
+    except ModuleNotFoundError:
+        return importlib.import_module("slicer.render").render
+
+
 def _worker_render(name: str, size: int, threads: int) -> dict:
     from sample_lattices import load_sample
-    from slicer.render import render
+
+    render = _render_function()
 
     skel = load_sample(SAMPLE[name])
     t0 = time.perf_counter()
@@ -95,9 +106,9 @@ def _worker_render(name: str, size: int, threads: int) -> dict:
 def _worker_warm(threads: int) -> dict:
     from sample_lattices import load_sample
     from slicer.grid import make_grid
-    from slicer.render import render
     from slicer.slicing import trace
 
+    render = _render_function()
     t0 = time.perf_counter()
     skel = load_sample("cubic_2x2x2")
     trace(skel, make_grid(skel.support_bounds(), 0.5), threads=threads)

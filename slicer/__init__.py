@@ -9,6 +9,7 @@ The main entry points, importable from ``slicer`` itself:
 ``save_scene``          write a scene (JSON v1 or OBJ), atomically
 ``generate_lattice``    unit-cell lattices and microstructures
 ``slice_skeleton``      inside runs per pixel column (every voxel centre exact)
+``render``              transparent rendering of the surface (ray tracing)
 ``run_slice``           the ``slice`` command's job: slice and write a format
 ``SliceJob``            a job's settings as data (grid, tracing, printer, scale)
 ``Part``, ``load_part`` a lattice with solid and clipping meshes (docs/parts.md)
@@ -39,6 +40,7 @@ from .errors import (FormatError, GridError, MissingDependencyError, OptionError
                      SkelsliceError, UsageError)
 from .kernel import kernel_normalisation
 from .lattice import generate_lattice
+from .rendering import RenderResult, render
 from .scene_io import load_scene, save_scene
 from .skeleton import Skeleton
 from .slicing import SliceResult, slice_skeleton
@@ -62,7 +64,7 @@ def __dir__():
 
 __all__ = [
     "Skeleton", "kernel_normalisation", "load_scene", "save_scene", "generate_lattice", "slice_skeleton",
-    "SliceResult", "run_slice", "SliceJob", "Part", "load_part", "slice_part",
+    "SliceResult", "render", "RenderResult", "run_slice", "SliceJob", "Part", "load_part", "slice_part",
     "SkelsliceError", "SceneError", "UsageError", "OptionError", "GridError", "FormatError",
     "MissingDependencyError", "OutputError", "__version__",
 ]

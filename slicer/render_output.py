@@ -1,7 +1,7 @@
 """Writing renders: the image as PNG and the crossings as ``.npz``, atomically.
 
 The job of ``skelslice render``: :func:`run_render` checks both destinations
-before any work, renders (:func:`slicer.render.render`, or
+before any work, renders (:func:`slicer.rendering.render`, or
 :func:`slicer.render_parts.render_part` for a part) and writes the files
 through :mod:`slicer.atomic`.
 """
@@ -18,7 +18,7 @@ from formats.base import zip_entry
 from .atomic import AtomicFile, check_destination
 from .errors import OutputError
 from .parts import Part
-from .render import RenderResult, render
+from .rendering import RenderResult, render
 from .render_parts import render_part
 from .skeleton import Skeleton
 

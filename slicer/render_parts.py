@@ -1,6 +1,6 @@
 """Transparent rendering of parts: the lattice's crossings and the meshes', composited in depth order.
 
-The lattice is rendered by :func:`slicer.render.render` with every crossing
+The lattice is rendered by :func:`slicer.rendering.render` with every crossing
 kept (``keep_roots``); each mesh role's crossings come from its faces: a face
 covers the pixel centres inside its screen projection
 (:func:`slicer.mesh_slicing.column_hits`, each centre on a shared edge counted
@@ -24,7 +24,7 @@ from .errors import GridError
 from .field import evaluate
 from .mesh_slicing import Soup, column_hits, combine_intervals, fill_spans, part_op
 from .parts import Part, as_part
-from .render import RenderResult, _fraction, _shade_array, make_camera, render
+from .rendering import RenderResult, _fraction, _shade_array, make_camera, render
 from .skeleton import Skeleton
 
 _ROLES = ("clip-inside", "clip-outside", "solid")
@@ -92,9 +92,9 @@ def render_part(part, size=(700, 700), view: str = "iso", camera: str = "ortho",
                 target=None, opacity: float = 0.3, max_opacity: float = 0.99, opaque: bool = False,
                 tolerance: float | None = None, keep_roots: bool = False, bisection: bool = False,
                 strict: bool = False, bucket: int = 16, threads: int | None = None) -> RenderResult:
-    """:func:`slicer.render.render` for a part: lattice and meshes in one picture.
+    """:func:`slicer.rendering.render` for a part: lattice and meshes in one picture.
 
-    A part without meshes is rendered by :func:`~slicer.render.render` itself.
+    A part without meshes is rendered by :func:`~slicer.rendering.render` itself.
     Parameters and result as there; ``stats`` adds ``mesh_crossings``;
     ``roots`` holds the part's crossings.
     """

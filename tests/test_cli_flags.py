@@ -28,7 +28,7 @@ from slicer import Skeleton, load_scene
 from slicer._kernels.launch import serial
 from slicer.cli import main
 from slicer.lattice import generate_lattice
-from slicer.render import Camera, render
+from slicer.rendering import Camera, render
 
 #: the chiral test model: a post, a long +x arm and a short +y arm (radius 0.3)
 ELL = Skeleton([[0, 0, 0], [0, 0, 1.6], [2.0, 0, 1.6], [0, 1.0, 1.6]], [[0, 1], [1, 2], [1, 3]],

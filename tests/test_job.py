@@ -10,6 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import slicer
+import slicer.rendering
 from slicer.cli import main
 from slicer.errors import FormatError, GridError, MissingDependencyError, OptionError, UsageError
 from slicer.grid import make_grid
@@ -151,10 +152,14 @@ def test_run_slice_takes_a_job_or_options_not_both(tmp_path):
 
 def test_public_api_is_importable_from_slicer():
     for name in ("Skeleton", "load_scene", "save_scene", "generate_lattice", "slice_skeleton", "run_slice",
-                 "SliceJob", "SliceResult"):
+                 "SliceJob", "SliceResult", "render", "RenderResult", "Part", "load_part", "slice_part"):
         assert callable(getattr(slicer, name)), name
         assert getattr(slicer, name).__doc__, name
     assert slicer.run_slice is run_slice and slicer.SliceJob is SliceJob
+    # the function, not its module (importing slicer.rendering must not shadow it)
+    assert slicer.render is slicer.rendering.render
+    img = slicer.render(Skeleton([[0, 0, 0], [0, 0, 2]], [[0, 1]], [[0.5, 0.5]]), size=(9, 9), view="top")
+    assert img.rgba.shape == (9, 9, 4) and img.rgba[4, 4, 3] > 0 and img.rgba[0, 0, 3] == 0
     with pytest.raises(AttributeError):
         slicer.no_such_name
 

@@ -17,7 +17,7 @@ from slicer._kernels.field import SCRATCH
 from slicer._kernels.lazy import bound_at, eval_dir
 from slicer._kernels.rays import piece_bounds_iv
 from slicer._kernels.raysupport import H_TIN, H_TOUT
-from slicer.render import render
+from slicer.rendering import render
 from test_ray_unimodal import rays
 
 #: rounding slack of the compiled field relative to the ray's peak

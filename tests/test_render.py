@@ -25,7 +25,7 @@ from PIL import Image
 from slicer import Skeleton
 from slicer.cli import main
 from slicer.lattice import generate_lattice
-from slicer.render import (AMBIENT, BACK_COLOUR, DIFFUSE, FRONT_COLOUR, LIGHT, SHININESS, SPECULAR, Camera,
+from slicer.rendering import (AMBIENT, BACK_COLOUR, DIFFUSE, FRONT_COLOUR, LIGHT, SHININESS, SPECULAR, Camera,
                            make_camera, render, screen_boxes)
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))

@@ -13,7 +13,7 @@ from ..contours import iter_contours
 from ..job import check_not_input, plate_placement
 from ..preview import PreviewBuilder, contours_of_polygons, png_data_uri, read_contours
 from ..printability import check_stack
-from ..render import render
+from ..rendering import render
 from ..scene_io import load_scene
 from ..slicing import SliceResult
 from .check import check_options, checked_stack, is_output, options_of

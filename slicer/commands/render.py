@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from ..render import CAMERAS, VIEWS
+from ..rendering import CAMERAS, VIEWS
 from ..render_output import run_render
 from ..blend import require_sum
 from .options import blend_option, load_part_from, part_options, radius_option

@@ -15,7 +15,7 @@ atomically).
 Examples
 --------
 >>> from slicer import Skeleton
->>> from slicer.render import render
+>>> from slicer.rendering import render
 >>> strut = Skeleton([[0, 0, 0], [0, 0, 10]], [[0, 1]], [[1.0, 1.0]])
 >>> res = render(strut, size=(8, 8), view="front", keep_roots=True)
 >>> int(res.count[4, 4])      # the central ray enters and leaves the strut
