@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._kernels.binning import bin_boxes
-from ._kernels.launch import numba_threads, one_item_per_thread
+from ._kernels.launch import launch_until_fits, numba_threads, one_item_per_thread
 from ._kernels.raysupport import kprime_max
 from ._kernels.render import (NSHADE, NSTAT, ROOTS_FULL, ST_CUT, ST_EV_ISOLATE, ST_EV_REFINE, ST_EV_SHADE,
                               ST_EV_SPLIT, ST_ROOTS, ST_STATUS, pixel_rays, render_buckets)
@@ -483,8 +483,10 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
     t0 = time.perf_counter()
     with numba_threads(threads) as nthreads:
         todo = thread_order(todo, np.diff(bk.offsets)[todo], nthreads)
-        pending, cap = todo, (B * B * 16 if keep_roots else 1)
-        while len(pending):
+        cap0 = B * B * 16 if keep_roots else 1
+
+        def launch(pending, scale):
+            cap = cap0 * scale
             nb = len(pending)
             ray_nroot = np.zeros((nb, B * B), np.int64)
             roots = np.zeros((nb, cap))
@@ -496,11 +498,13 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
                                cap, rgba, count, ray_nroot, roots, stats)
             full = stats[:, ST_STATUS] == ROOTS_FULL
             done = ~full
-            tot += stats[done].sum(axis=0)
+            tot[:] += stats[done].sum(axis=0)
             if keep_roots:
                 for q in np.nonzero(done)[0]:
                     parts.append((int(pending[q]), ray_nroot[q], roots[q, :ray_nroot[q].sum()].copy()))
-            pending, cap = pending[full], cap * 4
+            return full
+
+        launch_until_fits(launch, todo, "renderer")
     elapsed = time.perf_counter() - t0
     all_roots = _gather_roots(parts, bk, W, H) if keep_roots else None
     ev = tot[[ST_EV_ISOLATE, ST_EV_REFINE, ST_EV_SHADE]]

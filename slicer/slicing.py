@@ -13,7 +13,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ._kernels.launch import numba_threads, one_item_per_thread
+from ._kernels.launch import launch_until_fits, numba_threads, one_item_per_thread
 from ._kernels.raysupport import kprime_max
 from ._kernels.trace import RUNS_FULL, trace_buckets
 from ._kernels.union_trace import trace_union_buckets
@@ -328,11 +328,10 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
     walk = (cut_support,) if lazy is None else (cut_support, bool(lazy))
     B = bk.size
     out = []
-    pending = chunk
-    xcap = cap if spans else 1
-    for _ in range(16):
-        if not len(pending):
-            return out
+    cap0, xcap0 = cap, (cap if spans else 1)
+
+    def launch(pending, scale):
+        cap, xcap = cap0 * scale, xcap0 * (scale if spans else 1)
         nb = len(pending)
         ray_nrun = np.zeros((nb, B * B), np.int64)
         run_k0 = np.zeros((nb, cap), np.int32)
@@ -346,23 +345,19 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
                  grid.pixel_size[1], grid.origin[2], grid.layer_height, grid.layers, n, sigma, norm,
                  kmax, strict, *walk, bk.longest(), cap, ray_nrun, run_k0, run_k1, stats,
                  spans, span_tol if spans else 0.0, xcap, ray_nx, cross_z)
-        retry = []
-        for q in range(nb):
-            if stats[q, 0] == RUNS_FULL:
-                retry.append(pending[q])
-                continue
+        full = stats[:, 0] == RUNS_FULL
+        for q in np.nonzero(~full)[0]:
             used = int(ray_nrun[q].sum())
             xused = int(ray_nx[q].sum())
             out.append((pending[q], ray_nrun[q], run_k0[q, :used], run_k1[q, :used], int(stats[q, 1]),
                         ray_nx[q], cross_z[q, :xused].copy()))
-        pending = np.array(retry, dtype=np.int64)
-        if retry and cap > B * B * (grid.layers + 2) and (not spans or xcap > B * B * (128 * grid.layers + 64)):
+        if full.any() and cap > B * B * (grid.layers + 2) and (not spans or xcap > B * B * (128 * grid.layers + 64)):
             # more runs than a bucket can hold: the kernel's stack, not the buffer, overflowed
             raise RuntimeError("internal error: the tracer's stack overflowed")  # pragma: no cover
-        cap *= 4
-        if spans:
-            xcap *= 4
-    raise RuntimeError("internal error: the tracer's buffers kept overflowing")  # pragma: no cover
+        return full
+
+    launch_until_fits(launch, chunk, "tracer")
+    return out
 
 
 def trim(result: SliceResult, margin: int = 1) -> SliceResult:

@@ -9,8 +9,10 @@ the Python thread that opened it: two tiles launched from two threads of the
 from __future__ import annotations
 
 import contextlib
+from typing import Callable
 
 import numba
+import numpy as np
 
 from ..errors import OptionError
 
@@ -58,9 +60,41 @@ def one_item_per_thread():
         yield
 
 
+def launch_until_fits(launch: Callable[[np.ndarray, int], np.ndarray], items: np.ndarray, what: str,
+                      grow: int = 4, tries: int = 16) -> None:
+    """Launch a kernel on ``items`` and relaunch those whose output buffers filled up.
+
+    The one retry loop of the tracer and the renderer: a kernel writes a
+    variable amount per item (runs, roots) into buffers sized up front, and
+    flags the items that did not fit; those are launched again with ``grow``
+    times the room, at most ``tries`` times in all.
+
+    Parameters
+    ----------
+    launch : callable
+        ``launch(pending, scale)`` runs the kernel on ``pending`` (a subset
+        of ``items``, in order) with buffers ``scale`` times their first
+        size (1, grow, grow**2, ...), keeps the results of the items that
+        fit, and returns a boolean array, True for each item to run again.
+        It may raise when more room cannot help.
+    items : (m,) int64
+    what : str
+        Names the kernel in the internal error raised when ``tries`` runs
+        out.
+    """
+    pending, scale = items, 1
+    for _ in range(tries):
+        if not len(pending):
+            return
+        full = np.asarray(launch(pending, scale), dtype=bool)
+        pending, scale = pending[full], scale * grow
+    if len(pending):
+        raise RuntimeError(f"internal error: the {what}'s buffers kept overflowing")  # pragma: no cover
+
+
 def serial():
     """A scope of one Numba thread (small batches: waking the pool costs more than it saves)."""
     return numba_threads(1)
 
 
-__all__ = ["cores", "numba_threads", "one_item_per_thread", "serial"]
+__all__ = ["cores", "numba_threads", "one_item_per_thread", "launch_until_fits", "serial"]
