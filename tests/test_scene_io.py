@@ -377,8 +377,10 @@ def test_json_round_trip_is_bit_exact(seed, tmp_path):
 
 
 def test_json_round_trip_awkward_floats(tmp_path):
-    nodes = [[0.1 + 0.2, 1 / 3, -0.0], [5e-324, 1e150, -1.2345678901234567e150], [2.0 ** -1074 * 3, 1e-300, 7.0]]
-    s = Skeleton(nodes, [[0, 1], [1, 2]], [[5e-324, 1e140], [1 / 7, 2.0 ** 0.5]], 4, 1.0000000000000002)
+    # the awkward floats within the scene limits (docs/scene-format.md, "Limits"): subnormal and
+    # signed-zero coordinates, 17-digit values, the largest coordinate and radius magnitude
+    nodes = [[0.1 + 0.2, 1 / 3, -0.0], [5e-324, 1e8, -1.2345678901234567e8], [2.0 ** -1074 * 3, 1e-300, 7.0]]
+    s = Skeleton(nodes, [[0, 1], [1, 2]], [[1.0000000000000002, 1e9], [1 / 7, 2.0 ** 0.5]], 4, 1.0000000000000002)
     p = tmp_path / "s.json"
     s.save(p)
     assert_same(s, load_scene(p))
