@@ -24,6 +24,8 @@ MIN_RADIUS = 1e-9
 #: length (eps x 1e9 = 2.2e-7), which the tracer's exact classification of points, its span
 #: tolerances and the contour projection rely on (docs/scene-format.md, "Limits")
 RESOLUTION_RATIO = 1e9
+#: largest number of voxels (or cells of a reference grid) a job may have
+MAX_CELLS = 10**12
 
 
 def fmt_num(value) -> str:
@@ -219,6 +221,27 @@ def resolvable(value, name: str, reach: float, error: type[SkelsliceError] = Opt
     return v
 
 
+def scene_reach(scene) -> float:
+    """The largest coordinate magnitude of a scene's support box, mm (a Skeleton or a Part:
+    anything with ``support_bounds()``); the ``reach`` of :func:`resolvable`."""
+    return float(np.max(np.abs(np.asarray(scene.support_bounds(), dtype=np.float64))))
+
+
+def scene_step(value, name: str, scene, error: type[SkelsliceError] = OptionError) -> float:
+    """A grid spacing over a whole scene (``validate --mesh-edge``): :func:`resolvable` at the
+    scene's coordinates, and at most :data:`MAX_CELLS` cells over its support box.
+
+    ``scene``: anything with ``support_bounds()`` (a Skeleton or a Part), mm.
+    """
+    box = np.asarray(scene.support_bounds(), dtype=np.float64)
+    v = resolvable(value, name, float(np.max(np.abs(box))), error)
+    cells = float(np.prod(np.floor(np.ptp(box, axis=0) / v) + 2.0))
+    if cells > MAX_CELLS:
+        raise error(f"{name} = {fmt_num(v)} mm would need {cells:.3g} grid cells over the scene's support box "
+                    f"(limit {MAX_CELLS:.0e}); use a larger {name}")
+    return v
+
+
 def scene_numbers(nodes: np.ndarray, radii: np.ndarray, source: str | None = None, *,
                   node_entry=None, radius_entry=None) -> None:
     """Refuse a scene whose numbers float64 cannot handle exactly (docs/scene-format.md, "Limits").
@@ -309,4 +332,4 @@ def _range_text(lo, hi, lo_open, hi_open) -> str:
 
 
 __all__ = ["fmt_num", "number", "positive_number", "integer", "vector", "choice", "magnitude", "coordinates",
-           "resolvable", "scene_numbers", "MAX_MAGNITUDE", "MIN_RADIUS", "RESOLUTION_RATIO"]
+           "resolvable", "scene_numbers", "scene_reach", "scene_step", "MAX_CELLS", "MAX_MAGNITUDE", "MIN_RADIUS", "RESOLUTION_RATIO"]

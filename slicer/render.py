@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .buckets import Buckets
+from .checks import coordinates, positive_number, resolvable, scene_reach
 from .errors import GridError
 from .skeleton import Skeleton
 
@@ -173,7 +174,7 @@ def _point(v, name: str):
     p = np.asarray(v, dtype=np.float64).reshape(-1)
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         raise GridError(f"{name} must be three finite numbers X Y Z (mm), got {np.asarray(v).tolist()}")
-    return p
+    return np.asarray(coordinates(p, 3, name, GridError))
 
 
 def make_camera(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "ortho",
@@ -202,7 +203,6 @@ def make_camera(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str 
     -------
     Camera
     """
-    from .checks import positive_number
 
     W, H = _size(size)
     if view not in VIEWS:
@@ -405,7 +405,6 @@ def _shade_array(cam: Camera, opacity: float, max_opacity: float, opaque: bool) 
 
 
 def _fraction(v, name: str) -> float:
-    from .checks import positive_number
 
     x = positive_number(v, name, GridError)
     if x > 1.0:
@@ -457,7 +456,6 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
     from ._kernels.raysupport import kprime_max
     from ._kernels.render import NSTAT, ROOTS_FULL, ST_CUT, ST_EV_ISOLATE, ST_EV_REFINE, ST_EV_SHADE, \
         ST_EV_SPLIT, ST_ROOTS, ST_STATUS, render_buckets
-    from .checks import positive_number
     from ._kernels.launch import numba_threads
 
     cam = camera if isinstance(camera, Camera) else make_camera(skel, size, view, camera, fov, eye, target)
@@ -467,7 +465,7 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
     if tolerance is None:
         tol = TOLERANCE * diag
     else:
-        tol = positive_number(tolerance, "tolerance", GridError)
+        tol = resolvable(tolerance, "tolerance", scene_reach(skel), GridError)
         if tol < 1e-12 * diag:
             raise GridError(f"tolerance {tolerance!r} mm is below 1e-12 of the model size ({diag:.6g} mm)")
     bk = screen_buckets(skel, cam, bucket)

@@ -78,7 +78,7 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
         ``_result`` hold the objects the report images are drawn from.
     """
     from slicer.contours import layer_contours, layer_mask
-    from slicer.checks import positive_number
+    from slicer.checks import resolvable, scene_reach, scene_step
     from slicer.errors import GridError
     from slicer.slicing import slice_skeleton
 
@@ -86,7 +86,9 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
     from .metrics import compare_layer, contour_error_bound, polygon_rings, summarise
     from .reference_mesh import reference_sections
 
-    tol = positive_number(tol, "contour tolerance", GridError)
+    tol = resolvable(tol, "contour tolerance", scene_reach(skel), GridError)
+    if mesh_edge is not None:                           # before any work
+        scene_step(mesh_edge, "mesh edge", skel, GridError)
     if pixel_size is None:
         if int(pixels) < 2:
             raise GridError(f"pixels must be >= 2, got {pixels}")
@@ -100,7 +102,7 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
     g = res.grid
     px, py = g.pixel_size
     edge = float(mesh_edge) if mesh_edge is not None else 0.5 * min(px, py)
-    edge = positive_number(edge, "mesh edge", GridError)
+    edge = scene_step(edge, "mesh edge", skel, GridError)
     ks = pick_layers(res, int(layers_checked))
     zs = [g.origin[2] + k * g.layer_height for k in ks]
     t1 = time.perf_counter()
