@@ -11,6 +11,7 @@ from pathlib import Path
 
 import click
 
+from sample_lattices import SAMPLES
 from validation.bench import format_table as table1_table
 from validation.bench import table1
 from validation.bulge import bulge
@@ -89,6 +90,8 @@ def run_benchmark(which, model, quick, repeat, threads, json_path, plot_path=Non
         if json_path is not None and Path(json_path).resolve() == Path(plot_path).resolve():
             raise OptionError(f"--json and --plot are the same file {json_path}")
         require("matplotlib", "plot", "--plot")
+    if model is not None and model not in SAMPLES:
+        raise OptionError(f"unknown --model {model!r}; choose one of {', '.join(sorted(SAMPLES))}")
     if model is not None and which in ("bulge", "parts"):
         raise OptionError(f"--model does not apply to the {which} benchmark (it builds its own scenes)")
     for p in (json_path, plot_path):
