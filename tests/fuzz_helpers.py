@@ -28,6 +28,7 @@ import math
 import os
 import traceback
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
 from hypothesis import settings
@@ -68,16 +69,45 @@ def rarely(draw, n: int) -> bool:
     return draw(st.sampled_from([False] * (n - 1) + [True]))
 
 
-def text_number(lo: float, hi: float, extra=()) -> st.SearchStrategy:
-    """An option value as text: an ordinary number in [lo, hi] (3 times in 4), or hostile text."""
-    ordinary = st.floats(lo, hi).map(repr)
-    return st.one_of(ordinary, ordinary, ordinary, st.sampled_from(HOSTILE_TEXT + list(extra)))
+def mostly(ordinary: st.SearchStrategy, hostile: st.SearchStrategy, n: int = 4) -> st.SearchStrategy:
+    """``ordinary`` n - 1 times in n, else ``hostile`` (ordinary is what Hypothesis shrinks to)."""
+    return st.sampled_from([False] * (n - 1) + [True]).flatmap(lambda h: hostile if h else ordinary)
 
 
-def text_int(lo: int, hi: int) -> st.SearchStrategy:
-    """An integer option as text: ordinary in [lo, hi] (3 times in 4), or hostile text."""
-    ordinary = st.integers(lo, hi).map(str)
-    return st.one_of(ordinary, ordinary, ordinary, st.sampled_from(HOSTILE_INT_TEXT))
+@dataclass(frozen=True)
+class Opt:
+    """An option's values: ``ordinary`` ones (accepted, cheap) and ``hostile`` ones.
+
+    :meth:`pick` draws ordinary values only in a run that is meant to succeed, and ordinary
+    or (one time in six) hostile values in a hostile run, so both accepted and refused runs
+    are frequent.
+    """
+
+    ordinary: st.SearchStrategy
+    hostile: st.SearchStrategy
+
+    def pick(self, hostile: bool) -> st.SearchStrategy:
+        return mostly(self.ordinary, self.hostile, 6) if hostile else self.ordinary
+
+
+def text_number(lo: float, hi: float, extra=()) -> Opt:
+    """An option value as text: an ordinary number in [lo, hi], or hostile text."""
+    return Opt(st.floats(lo, hi).map(repr), st.sampled_from(HOSTILE_TEXT + list(extra)))
+
+
+def text_int(lo: int, hi: int) -> Opt:
+    """An integer option as text: ordinary in [lo, hi], or hostile text."""
+    return Opt(st.integers(lo, hi).map(str), st.sampled_from(HOSTILE_INT_TEXT))
+
+
+def opt_tuple(*opts: Opt) -> Opt:
+    """Several values of one option (``--at X Y``), each hostile now and then in a hostile run."""
+    return Opt(st.tuples(*[o.ordinary for o in opts]), st.tuples(*[mostly(o.ordinary, o.hostile, 3) for o in opts]))
+
+
+def choice(ordinary: list, hostile: list) -> Opt:
+    """A named value: one of ``ordinary``, or one of ``hostile``."""
+    return Opt(st.sampled_from(ordinary), st.sampled_from(hostile))
 
 
 def mistyped() -> st.SearchStrategy:
@@ -185,11 +215,11 @@ def json_text(doc: dict, draw_cut: int | None = None) -> str:
     return text if draw_cut is None else text[:draw_cut]
 
 
-OBJ_NUMBER = st.one_of(*[st.floats(-1, 1).map(repr)] * 8,
-                       st.sampled_from(["nan", "inf", "-inf", "1e400", "-0", "5e-324", "1e-300", "1e300",
-                                        "1e10", "0x1", "abc", "1e", "--1"]))
-OBJ_RADIUS = st.one_of(*[st.floats(0.1, 0.3).map(repr)] * 8,
-                       st.sampled_from(["0", "-0.2", "nan", "inf", "1e-300", "5e-324", "1e300", "1e9"]))
+OBJ_NUMBER = mostly(st.floats(-1, 1).map(repr),
+                    st.sampled_from(["nan", "inf", "-inf", "1e400", "-0", "5e-324", "1e-300", "1e300",
+                                     "1e10", "0x1", "abc", "1e", "--1"]), n=8)
+OBJ_RADIUS = mostly(st.floats(0.1, 0.3).map(repr),
+                    st.sampled_from(["0", "-0.2", "nan", "inf", "1e-300", "5e-324", "1e300", "1e9"]), n=8)
 OBJ_INDEX = st.one_of(st.integers(-4, 4).map(str),
                       st.sampled_from(["99999999999999999999", "-99999999999999999999", "1/1", "2/x", "x", "1.5"]))
 
@@ -225,10 +255,10 @@ _RELS = """<?xml version="1.0" encoding="UTF-8"?>
 <Relationship Target="/3D/3dmodel.model" Id="rel0" Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/>
 </Relationships>"""
 
-TMF_NUMBER = st.one_of(*[st.floats(-1, 1).map(repr)] * 8,
-                       st.sampled_from(["nan", "INF", "1e400", "-0", "5e-324", "1e-300", "1e30", "1e10", "abc", ""]))
-TMF_RADIUS = st.one_of(*[st.floats(0.1, 0.3).map(repr)] * 8,
-                       st.sampled_from(["0", "-0.2", "nan", "1e-300", "5e-324", "1e30", "1e9", "x"]))
+TMF_NUMBER = mostly(st.floats(-1, 1).map(repr),
+                    st.sampled_from(["nan", "INF", "1e400", "-0", "5e-324", "1e-300", "1e30", "1e10", "abc", ""]), n=8)
+TMF_RADIUS = mostly(st.floats(0.1, 0.3).map(repr),
+                    st.sampled_from(["0", "-0.2", "nan", "1e-300", "5e-324", "1e30", "1e9", "x"]), n=8)
 
 
 @st.composite

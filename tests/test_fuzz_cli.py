@@ -29,8 +29,8 @@ from hypothesis import strategies as st
 from formats.printers import PRINTERS
 from slicer.cli import main
 
-from fuzz_helpers import (RUNS, check_run, fuzz_settings, json_scene, json_text, rarely, scene_file, text_int,
-                          text_number, write_inputs)
+from fuzz_helpers import (RUNS, Opt, check_run, choice, fuzz_settings, json_scene, json_text, opt_tuple, rarely,
+                          scene_file, text_int, text_number, write_inputs)
 from interrupting import interrupt_and_check, start_slice, wait_mid_write
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -59,21 +59,17 @@ def _run(args: list[str], folder: Path, allowed=(0, 2), name: str = "") -> None:
     check_run(result, folder, before, allowed, what=f"skelslice {' '.join(map(str, args))}")
 
 
-def _options(draw, table: dict) -> list[str]:
-    """Some of the options of ``table`` (name -> strategy of a value or a tuple of values)."""
+def _options(draw, table: dict, hostile: bool) -> list[str]:
+    """Some of the options of ``table`` (name -> :class:`Opt`, or a strategy of flags/choices)."""
     out: list[str] = []
-    for name, strategy in table.items():
-        if rarely(draw, 3):
-            value = draw(strategy)
+    for name, spec in table.items():
+        if rarely(draw, 4):
+            value = draw(spec.pick(hostile) if isinstance(spec, Opt) else spec)
             if value is True:
                 out.append(name)
             elif value is not False:
                 out += [name, *(value if isinstance(value, tuple) else (value,))]
     return out
-
-
-def _tuple(strategy, n: int):
-    return st.tuples(*[strategy] * n)
 
 
 # sane ranges are small (bounded work); hostile text is the edges (refused or cheap)
@@ -83,7 +79,7 @@ COORD_OPT = text_number(-3.0, 3.0)
 GRID = {
     "--pixel-size-y": PIXEL,
     "--layer-height": LAYER,
-    "--bounds": st.tuples(text_number(-3, -1), text_number(-3, -1), text_number(-3, -1),
+    "--bounds": opt_tuple(text_number(-3, -1), text_number(-3, -1), text_number(-3, -1),
                           text_number(1, 3), text_number(1, 3), text_number(1, 3)),
 }
 TRACE = {
@@ -91,11 +87,11 @@ TRACE = {
     "--bucket": text_int(0, 64),
     "--threads": text_int(1, 2),
     "--strict": st.booleans(),
-    "--blend": st.sampled_from(["sum", "union"]),
+    "--blend": choice(["sum"], ["union", "max"]),
 }
 PRINT = {
-    "--printer": st.sampled_from(PRINTER_NAMES + ["bogus", ""]),
-    "--at": _tuple(text_number(0.0, 60.0), 2),
+    "--printer": choice(PRINTER_NAMES, ["bogus", ""]),
+    "--at": opt_tuple(text_number(0.0, 60.0), text_number(0.0, 60.0)),
     "--aa": text_int(1, 3),
     "--aa-z": st.booleans(),
     "--gamma": text_number(0.5, 2.0),
@@ -104,8 +100,8 @@ PRINT = {
     "--bottom-layers": text_int(0, 5),
 }
 SCALE = {
-    "--max-memory": st.sampled_from(["auto", "none", "64MB", "1", "0", "-1GB", "1e400GB", "1.5GiB", "abc",
-                                     "18446744073709551616"]),
+    "--max-memory": choice(["auto", "none", "64MB", "1.5GiB"], ["1", "0", "-1GB", "1e400GB", "abc",
+                                                              "18446744073709551616"]),
     "--executor": st.sampled_from(["serial", "threads"]),
     "--tile": text_int(1, 64),
     "--slab": text_int(1, 8),
@@ -120,55 +116,68 @@ def _scene_in(folder: Path, data) -> Path:
 
 
 @st.composite
-def _hostile_or_sane_scene(draw):
-    """Half the time a hostile scene file, else the small valid one (so option values get tested)."""
-    if draw(st.booleans()):
-        return draw(scene_file())
-    return "scene.json", json.dumps(STRUT).encode()
+def _run_kind(draw):
+    """(hostile, (file name, bytes)): a hostile run (hostile scene file, or the small valid scene with
+    hostile option values now and then) or an ordinary one (the valid scene, ordinary values)."""
+    hostile = draw(st.sampled_from([True, False]))
+    if hostile and draw(st.booleans()):
+        return True, draw(scene_file())
+    return hostile, ("scene.json", json.dumps(STRUT).encode())
 
 
-@fuzz_settings(60)
-@given(data=_hostile_or_sane_scene(), st_data=st.data())
-def test_fuzz_slice(data, st_data):
+SUFFIX = {"zip": ".zip", "sl1s": ".sl1s", "goo": ".goo", "svg": ".svg", "cli": ".cli", "geojson": ".geojson",
+          "ctb": ".ctb", "nanodlp": ".nanodlp", "pws": ".pws"}
+
+
+@fuzz_settings(150)
+@given(kind=_run_kind(), st_data=st.data())
+def test_fuzz_slice(kind, st_data):
+    hostile, data = kind
     draw = st_data.draw
     with tempfile.TemporaryDirectory() as d:
         folder = Path(d)
         scene = _scene_in(folder, data)
-        fmt = draw(st.sampled_from(FORMATS + [None] * 4))
-        suffix = {"zip": ".zip", "sl1s": ".sl1s", "goo": ".goo", "svg": ".svg", "cli": ".cli",
-                  "geojson": ".geojson", "ctb": ".ctb", "nanodlp": ".nanodlp", "pws": ".pws"}.get(fmt, "")
-        args = ["slice", str(scene), "-o", f"out{suffix}", "-q"]
+        printer = draw(st.booleans())
+        fmt = draw(st.sampled_from(([None, "png", "zip", "svg", "cli", "geojson"] if not printer else
+                                    [None, "sl1s", "goo", "ctb", "nanodlp", "pws", "png"])
+                                   + (["bogus", "ctb"] if hostile else [])))
+        args = ["slice", str(scene), "-o", f"out{SUFFIX.get(fmt, '')}", "-q"]
         if fmt is not None:
             args += ["--format", fmt]
-        printer = draw(st.booleans())
-        table = {**GRID, **TRACE, **SCALE, **{k: v for k, v in PRINT.items() if printer or k != "--printer"},
+        table = {**GRID, **TRACE, **SCALE, **{k: v for k, v in PRINT.items() if printer or k not in ("--printer",
+                                                                                                     "--at")},
                  "--contour-tol": text_number(2e-3, 2e-2), "--radius": text_number(0.1, 0.3)}
-        if not printer:
-            args += ["--pixel-size", draw(PIXEL)]
-        args += _options(draw, table)
+        if printer:
+            args += ["--printer", draw(PRINT["--printer"].pick(hostile))]
+            table.pop("--bounds")
+            table.pop("--pixel-size-y")
+        else:
+            args += ["--pixel-size", draw(PIXEL.pick(hostile))]
+        args += _options(draw, table, hostile)
         if rarely(draw, 5):
             args.append("--dry-run")
         _run(args, folder, name="slice")
 
 
-@fuzz_settings(40)
-@given(data=_hostile_or_sane_scene(), st_data=st.data())
-def test_fuzz_render(data, st_data):
+@fuzz_settings(100)
+@given(kind=_run_kind(), st_data=st.data())
+def test_fuzz_render(kind, st_data):
+    hostile, data = kind
     draw = st_data.draw
-    size = st.one_of(st.integers(1, 12).map(str), st.sampled_from(["0", "-1", "16385", "99999999999999999999",
-                                                                     "2.5", "nan"]))
+    size = Opt(st.integers(1, 12).map(str), st.sampled_from(["0", "-1", "16385", "99999999999999999999", "2.5",
+                                                               "nan"]))
     table = {
-        "--size": st.tuples(size, size),
-        "--view": st.sampled_from(["iso", "top", "front", "side", "bottom", "bogus"]),
-        "--camera": st.sampled_from(["ortho", "perspective", "fisheye"]),
+        "--size": opt_tuple(size, size),
+        "--view": choice(["iso", "top", "front", "side"], ["bottom", "bogus"]),
+        "--camera": choice(["ortho", "perspective"], ["fisheye"]),
         "--fov": text_number(5.0, 120.0, extra=["180", "179.9999999", "-35"]),
-        "--eye": st.tuples(text_number(-20, 20), text_number(-20, 20), text_number(-20, 20)),
-        "--target": st.tuples(text_number(-2, 2), text_number(-2, 2), text_number(-2, 2)),
+        "--eye": opt_tuple(text_number(-20, 20), text_number(-20, 20), text_number(-20, 20)),
+        "--target": opt_tuple(text_number(-2, 2), text_number(-2, 2), text_number(-2, 2)),
         "--opacity": text_number(0.05, 1.0),
         "--max-opacity": text_number(0.05, 1.0),
         "--opaque": st.booleans(),
         "--tolerance": text_number(1e-4, 1e-2),
-        "--roots-out": st.sampled_from(["roots.npz", "out.png"]),
+        "--roots-out": choice(["roots.npz"], ["out.png"]),
         "--bisection": st.booleans(),
         "--strict": st.booleans(),
         "--transparent": st.booleans(),
@@ -179,13 +188,14 @@ def test_fuzz_render(data, st_data):
     with tempfile.TemporaryDirectory() as d:
         folder = Path(d)
         scene = _scene_in(folder, data)
-        args = ["render", str(scene), "-o", "out.png", "-q", "--size", "8", "8"] + _options(draw, table)
+        args = ["render", str(scene), "-o", "out.png", "-q", "--size", "8", "8"] + _options(draw, table, hostile)
         _run(args, folder, name="render")
 
 
-@fuzz_settings(12)
-@given(data=_hostile_or_sane_scene(), st_data=st.data())
-def test_fuzz_validate(data, st_data):
+@fuzz_settings(25)
+@given(kind=_run_kind(), st_data=st.data())
+def test_fuzz_validate(kind, st_data):
+    hostile, data = kind
     draw = st_data.draw
     table = {
         "--mesh-edge": text_number(0.1, 0.3),
@@ -195,87 +205,95 @@ def test_fuzz_validate(data, st_data):
         "--min-iou": text_number(0.0, 1.0),
         "--pixels": text_int(2, 16),
         "--layer-height": LAYER,
-        "--method": st.sampled_from(["interval", "sampling", "segment"]),
+        "--method": choice(["interval", "sampling", "segment"], ["bogus"]),
         "--threads": text_int(1, 2),
-        "--report": st.sampled_from(["report"]),
+        "--report": choice(["report"], ["scene.json"]),
         "--json": st.booleans(),
     }
     with tempfile.TemporaryDirectory() as d:
         folder = Path(d)
         scene = _scene_in(folder, data)
-        args = ["validate", str(scene), "--pixel-size", draw(text_number(0.2, 0.5)), "--layers-checked", "1"]
-        _run(args + _options(draw, table), folder, allowed=(0, 1, 2), name="validate")
+        args = ["validate", str(scene), "--pixel-size", draw(text_number(0.2, 0.5).pick(hostile)),
+                "--layers-checked", "1"]
+        _run(args + _options(draw, table, hostile), folder, allowed=(0, 1, 2), name="validate")
 
 
-@fuzz_settings(80)
+@fuzz_settings(150)
 @given(data=scene_file(), st_data=st.data())
 def test_fuzz_info(data, st_data):
     draw = st_data.draw
     table = {"--pixel-size": text_number(0.01, 1.0), "--radius": text_number(0.1, 0.3), "--json": st.booleans(),
-             "--blend": st.sampled_from(["sum", "union", "max"])}
+             "--blend": choice(["sum", "union"], ["max"])}
     with tempfile.TemporaryDirectory() as d:
         folder = Path(d)
         scene = _scene_in(folder, data)
-        _run(["info", str(scene)] + _options(draw, table), folder, name="info")
+        _run(["info", str(scene)] + _options(draw, table, True), folder, name="info")
 
 
-@fuzz_settings(40)
-@given(st_data=st.data())
-def test_fuzz_lattice(st_data):
+@fuzz_settings(80)
+@given(hostile=st.booleans(), st_data=st.data())
+def test_fuzz_lattice(hostile, st_data):
     draw = st_data.draw
     cells = text_int(1, 3)
-    radius = st.one_of(text_number(0.05, 0.4), st.tuples(text_number(0.05, 0.4), text_number(0.05, 0.4)).map(
-        lambda t: f"{t[0]}:{t[1]}"), st.sampled_from(["0.1:", ":0.2", "1:2:3", "0.2:nan"]))
-    cell_size = st.one_of(text_number(1.0, 4.0), st.tuples(text_number(1, 4), text_number(1, 4),
-                                                           text_number(1, 4)).map(",".join))
-    args = ["lattice", draw(st.sampled_from(["cubic", "bcc", "fcc", "octet", "kelvin", "bcc+cubic", "bogus", ""])),
-            "--cells", *draw(_tuple(cells, 3)), "--cell-size", draw(cell_size), "--radius", draw(radius),
-            "-o", draw(st.sampled_from(["l.json", "l.obj", "l.txt"]))]
+    r = text_number(0.05, 0.4)
+    radius = Opt(st.one_of(r.ordinary, st.tuples(r.ordinary, r.ordinary).map(":".join)),
+                 st.one_of(r.hostile, st.tuples(r.ordinary, r.hostile).map(":".join),
+                           st.sampled_from(["0.1:", ":0.2", "1:2:3", "0.2:nan"])))
+    c = text_number(1.0, 4.0)
+    cell_size = Opt(st.one_of(c.ordinary, st.tuples(c.ordinary, c.ordinary, c.ordinary).map(",".join)),
+                    st.one_of(c.hostile, st.tuples(c.ordinary, c.hostile, c.ordinary).map(",".join)))
+    types = choice(["cubic", "bcc", "fcc", "octet", "kelvin", "bcc+cubic"], ["bogus", ""])
+    args = ["lattice", draw(types.pick(hostile)),
+            "--cells", *draw(opt_tuple(cells, cells, cells).pick(hostile)), "--cell-size",
+            draw(cell_size.pick(hostile)), "--radius", draw(radius.pick(hostile)),
+            "-o", draw(choice(["l.json", "l.obj"], ["l.txt", "."]).pick(hostile))]
     table = {
-        "--axis": st.sampled_from(["x", "y", "z", "w"]),
-        "--origin": _tuple(COORD_OPT, 3),
-        "--envelope-box": st.tuples(text_number(-1, 1), text_number(-1, 1), text_number(-1, 1),
+        "--axis": choice(["x", "y", "z"], ["w"]),
+        "--origin": opt_tuple(COORD_OPT, COORD_OPT, COORD_OPT),
+        "--envelope-box": opt_tuple(text_number(-1, 1), text_number(-1, 1), text_number(-1, 1),
                                     text_number(2, 8), text_number(2, 8), text_number(2, 8)),
-        "--envelope-cylinder": st.tuples(text_number(0, 4), text_number(0, 4), text_number(0.5, 4),
+        "--envelope-cylinder": opt_tuple(text_number(0, 4), text_number(0, 4), text_number(0.5, 4),
                                          text_number(-1, 1), text_number(2, 8)),
-        "--degree": text_int(2, 8),
+        "--degree": Opt(st.sampled_from(["2", "4", "6", "8"]), st.sampled_from(["3", "0", "-2", "18", "1e400"])),
         "--sigma": text_number(1.1, 4.0),
     }
     with tempfile.TemporaryDirectory() as d:
-        _run(args + _options(draw, table), Path(d), name="lattice")
+        _run(args + _options(draw, table, hostile), Path(d), name="lattice")
 
 
-@fuzz_settings(30)
-@given(data=_hostile_or_sane_scene(), st_data=st.data())
-def test_fuzz_check(data, st_data):
+@fuzz_settings(50)
+@given(kind=_run_kind(), st_data=st.data())
+def test_fuzz_check(kind, st_data):
+    hostile, data = kind
     draw = st_data.draw
     table = {**GRID, **{k: TRACE[k] for k in ("--method", "--threads")},
              "--min-feature": text_number(0.0, 1.0), "--min-island-area": text_number(0.0, 1.0),
              "--min-trap-volume": text_number(0.0, 1.0), "--max-area-jump": text_number(0.0, 10.0),
-             "--fail-on": st.sampled_from(["islands", "thin", "traps", "islands,traps", "bogus", ""]),
-             "--json": st.sampled_from(["report.json"]), "--radius": text_number(0.1, 0.3)}
+             "--fail-on": choice(["islands", "thin", "traps", "islands,traps"], ["bogus", ""]),
+             "--json": choice(["report.json"], ["scene.json", "."]), "--radius": text_number(0.1, 0.3)}
     with tempfile.TemporaryDirectory() as d:
         folder = Path(d)
         scene = _scene_in(folder, data)
-        args = ["check", str(scene), "-q", "--pixel-size", draw(PIXEL)] + _options(draw, table)
+        args = ["check", str(scene), "-q", "--pixel-size", draw(PIXEL.pick(hostile))] + _options(draw, table, hostile)
         _run(args, folder, allowed=(0, 1, 2), name="check")
 
 
-@fuzz_settings(10)
-@given(data=_hostile_or_sane_scene(), st_data=st.data())
-def test_fuzz_preview(data, st_data):
+@fuzz_settings(15)
+@given(kind=_run_kind(), st_data=st.data())
+def test_fuzz_preview(kind, st_data):
+    hostile, data = kind
     draw = st_data.draw
-    table = {**{k: GRID[k] for k in ("--layer-height",)},
-             "--contour-tol": text_number(2e-3, 2e-2), "--render-size": text_int(8, 24),
+    table = {"--layer-height": LAYER, "--contour-tol": text_number(2e-3, 2e-2), "--render-size": text_int(8, 24),
              "--no-check": st.booleans(), "--no-contours": st.booleans(), "--radius": text_number(0.1, 0.3)}
     with tempfile.TemporaryDirectory() as d:
         folder = Path(d)
         scene = _scene_in(folder, data)
-        args = ["preview", str(scene), "-o", "view.html", "--pixel-size", draw(PIXEL), "--render-size", "16"]
-        _run(args + _options(draw, table), folder, allowed=(0, 2), name="preview")
+        args = ["preview", str(scene), "-o", "view.html", "--pixel-size", draw(PIXEL.pick(hostile)),
+                "--render-size", "16"]
+        _run(args + _options(draw, table, hostile), folder, allowed=(0, 2), name="preview")
 
 
-@fuzz_settings(15)
+@fuzz_settings(20)
 @given(st_data=st.data())
 def test_fuzz_printers_and_bench_refusals(st_data):
     """``printers`` (no numbers: its flags and stray arguments) and ``bench`` with values it must
@@ -302,7 +320,7 @@ def test_fuzz_printers_and_bench_refusals(st_data):
         _run(["bench", *bad], folder, allowed=(2,), name="bench")
 
 
-@fuzz_settings(40)
+@fuzz_settings(60)
 @given(doc=json_scene(), cut=st.integers(0, 400))
 def test_fuzz_truncated_json_through_info(doc, cut):
     """JSON cut anywhere: a named syntax error (exit 2), never a traceback."""
