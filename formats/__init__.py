@@ -12,7 +12,7 @@ from pathlib import Path
 from slicer.errors import OutputError
 
 from .base import AtomicDir, AtomicFile, StackWriter
-from .cli import CliAsciiWriter, CliShortWriter, CliWriter
+from .common_layer import CliAsciiWriter, CliShortWriter, CliWriter
 from .contour_base import ContourWriter
 from .ctb import CtbV2Writer, CtbWriter
 from .goo import GooWriter

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._kernels.binning import bin_boxes
 from .field import segment_table, support_boxes
 from .grid import SliceGrid
 from .skeleton import Skeleton
@@ -63,8 +64,6 @@ def build_buckets(skel: Skeleton, grid: SliceGrid, size: int = 64) -> Buckets:
         Bucket edge B in pixels; ``0`` means one bucket for the whole image
         (a single global list, as in Liu et al. 2021).
     """
-    from ._kernels.binning import bin_boxes
-
     W, H = grid.width, grid.height
     B = int(size) if size and size > 0 else max(W, H)
     nbx = -(-W // B)

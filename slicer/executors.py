@@ -18,7 +18,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator
 
-from .errors import GridError, OptionError, require
+from .errors import OptionError, require
 
 #: executor names accepted by :func:`open_executor` (and ``--executor``)
 EXECUTORS = ("serial", "threads", "processes", "dask")
@@ -124,7 +124,7 @@ def open_executor(kind: str = "serial", workers: int | None = None,
 
     Raises
     ------
-    GridError
+    OptionError
         Unknown kind, ``workers < 1``, ``scheduler`` without Dask, Dask not
         installed, or a scheduler that cannot be reached.
     """
@@ -156,7 +156,7 @@ def _open_dask(workers, scheduler):
             try:
                 client = stack.enter_context(Client(scheduler, timeout=CONNECT_TIMEOUT))
             except (OSError, TimeoutError) as exc:
-                raise GridError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+                raise OptionError(f"--scheduler: cannot reach the Dask scheduler at {scheduler}: {exc}") from None
             n = int(workers) if workers else max(1, sum(
                 w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values()))
             address = scheduler

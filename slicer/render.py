@@ -29,8 +29,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .buckets import Buckets
+from ._kernels.binning import bin_boxes
+from ._kernels.launch import numba_threads, one_item_per_thread
+from ._kernels.raysupport import kprime_max
+from ._kernels.render import (NSHADE, NSTAT, ROOTS_FULL, ST_CUT, ST_EV_ISOLATE, ST_EV_REFINE, ST_EV_SHADE,
+                              ST_EV_SPLIT, ST_ROOTS, ST_STATUS, pixel_rays, render_buckets)
 from .checks import coordinates, positive_number, resolvable, scene_reach
+from .field import segment_table
+from .buckets import Buckets, thread_order
 from .errors import GridError
 from .skeleton import Skeleton
 
@@ -119,7 +125,6 @@ class Camera:
         origin, direction : (height, width, 3) float64
             mm and unit vectors, computed by the very kernel that renders.
         """
-        from ._kernels.render import pixel_rays
 
         o = np.empty((self.height, self.width, 3))
         d = np.empty((self.height, self.width, 3))
@@ -316,8 +321,6 @@ def screen_buckets(skel: Skeleton, cam: Camera, size: int = 16) -> ScreenBuckets
     nearest point (orthographic: along the view direction; perspective:
     distance from the eye), so rays find their hits nearly sorted.
     """
-    from ._kernels.binning import bin_boxes
-    from .field import segment_table
 
     B = int(size)
     if isinstance(size, bool) or B < 1:
@@ -396,7 +399,6 @@ class RenderResult:
 
 
 def _shade_array(cam: Camera, opacity: float, max_opacity: float, opaque: bool) -> np.ndarray:
-    from ._kernels.render import NSHADE
 
     light = _unit(-cam.forward + LIGHT[0] * cam.right + LIGHT[1] * cam.up, "the light direction")
     return np.array(list(light) + list(FRONT_COLOUR) + list(BACK_COLOUR)
@@ -453,10 +455,6 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
     threads : int, optional
         Numba threads (default: all). The output does not depend on it.
     """
-    from ._kernels.raysupport import kprime_max
-    from ._kernels.render import NSTAT, ROOTS_FULL, ST_CUT, ST_EV_ISOLATE, ST_EV_REFINE, ST_EV_SHADE, \
-        ST_EV_SPLIT, ST_ROOTS, ST_STATUS, render_buckets
-    from ._kernels.launch import numba_threads
 
     cam = camera if isinstance(camera, Camera) else make_camera(skel, size, view, camera, fov, eye, target)
     opacity = _fraction(opacity, "opacity")
@@ -481,10 +479,6 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
     parts = []   # (bucket, per-ray counts, roots)
     t0 = time.perf_counter()
     with numba_threads(threads) as nthreads:
-        import numba
-
-        from .buckets import thread_order
-
         todo = thread_order(todo, np.diff(bk.offsets)[todo], nthreads)
         pending, cap = todo, (B * B * 16 if keep_roots else 1)
         while len(pending):
@@ -493,7 +487,7 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
             roots = np.zeros((nb, cap))
             stats = np.zeros((nb, NSTAT), np.int64)
             # dynamic schedules hand out one bucket at a time (thread_order covers static ones)
-            with numba.parallel_chunksize(1):
+            with one_item_per_thread():
                 render_buckets(pending, bk.nbx, B, W, H, bk.offsets, bk.ids, bk.table, bk.boxes, cam.array,
                                n, sigma, norm, kmax, tol, strict, bisection, cut_support, keep_roots, shade,
                                cap, rgba, count, ray_nroot, roots, stats)

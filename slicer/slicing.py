@@ -13,7 +13,9 @@ from typing import Iterator
 
 import numpy as np
 
-from ._kernels.launch import numba_threads
+from ._kernels.launch import numba_threads, one_item_per_thread
+from ._kernels.raysupport import kprime_max
+from ._kernels.trace import RUNS_FULL, trace_buckets
 from .blend import require_traceable
 from .buckets import Buckets, build_buckets, thread_order
 from .errors import GridError
@@ -199,9 +201,6 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
         Position tolerance of the span ends (default ``layer_height / 64``;
         at least ``layer_height / 65536``).
     """
-    from ._kernels.raysupport import kprime_max
-    from ._kernels.trace import RUNS_FULL, trace_buckets
-
     if method not in METHODS:
         raise GridError(f"unknown method {method!r}; choose one of {sorted(METHODS)}")
     span_tol = _check_spans(method, spans, span_tol, grid.layer_height)
@@ -218,14 +217,12 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
     nevals = 0
     t0 = time.perf_counter()
     with numba_threads(threads) as nthreads:
-        import numba
-
         sizes = np.diff(bk.offsets)
         for s in range(0, len(todo), batch):
             chunk = thread_order(todo[s:s + batch], sizes[todo[s:s + batch]], nthreads)
             cap = B * B * 4
             results = _run_batch(trace_buckets, METHODS[method], chunk, bk, grid, n, sigma, norm,
-                                 kmax, strict, cut_support, cap, numba, RUNS_FULL, spans, span_tol)
+                                 kmax, strict, cut_support, cap, RUNS_FULL, spans, span_tol)
             for bidx, nrun, rk0, rk1, ne, nx, xz in results:
                 nevals += ne
                 by, bx = divmod(int(bidx), bk.nbx)
@@ -296,7 +293,7 @@ def _pair_crossings(grid: SliceGrid, xpix_parts, xz_parts):
 
 
 def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, kmax, strict,
-               cut_support, cap, numba, RUNS_FULL, spans=False, span_tol=None):
+               cut_support, cap, RUNS_FULL, spans=False, span_tol=None):
     """Run the kernel on a batch of buckets, retrying overflowing ones with more room.
 
     Returns, per bucket, ``(bucket, runs per ray, k0, k1, evaluations,
@@ -316,7 +313,7 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
         stats = np.zeros((nb, 2), np.int64)
         ray_nx = np.zeros((nb, B * B), np.int64)
         cross_z = np.zeros((nb, xcap))
-        with numba.parallel_chunksize(1):
+        with one_item_per_thread():
             kern(code, pending, bk.nbx, B, grid.width, grid.height, bk.offsets, bk.ids, bk.table,
                  bk.boxes, grid.origin[0], grid.origin[1], grid.pixel_size[0],
                  grid.pixel_size[1], grid.origin[2], grid.layer_height, grid.layers, n, sigma, norm,

@@ -13,13 +13,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import re
 from dataclasses import dataclass
 
 import numpy as np
 
 from ._kernels.launch import cores
-from .errors import GridError
+from .field import support_boxes
+from .errors import GridError, OptionError
 from .grid import SliceGrid, make_grid
 from .skeleton import Skeleton
 from .slicing import trace
@@ -75,13 +77,13 @@ def parse_size(text) -> int | None:
             return None
         m = re.fullmatch(r"([0-9]*\.?[0-9]+(?:e[+-]?[0-9]+)?)\s*([a-z]*)", s)
         if not m or m.group(2) not in _UNITS:
-            raise GridError(f"--max-memory: cannot read {text!r}; use e.g. 2GB, 1.5GiB, 800MB or none")
+            raise OptionError(f"--max-memory: cannot read {text!r}; use e.g. 2GB, 1.5GiB, 800MB or none")
         value, unit = float(m.group(1)), m.group(2)
     n = value * _UNITS[unit]
     if not math.isfinite(n) or n <= 0:
         if n == 0:
             return None
-        raise GridError(f"--max-memory must be a positive size, got {text!r}")
+        raise OptionError(f"--max-memory must be a positive size, got {text!r}")
     return int(n)
 
 
@@ -96,8 +98,6 @@ def format_size(n: float) -> str:
 
 def auto_budget() -> int | None:
     """Half of the machine's physical memory, bytes (None where unknown)."""
-    import os
-
     try:
         return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2)
     except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
@@ -108,8 +108,6 @@ def current_rss() -> int:
     """Resident memory of this process now, bytes (0 where unknown)."""
     try:
         with open("/proc/self/statm") as fh:
-            import os
-
             return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     except (OSError, ValueError, IndexError):  # pragma: no cover - not Linux
         return 0
@@ -242,8 +240,6 @@ def sample_runs(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, boxes=None,
     -------
     runs_per_column, seconds_per_column, fill : float
     """
-    from .field import support_boxes
-
     lo, hi = boxes if boxes is not None else support_boxes(skel)
     e = max(1, min(edge, grid.width, grid.height))
     runs = cols = inside = 0
@@ -308,8 +304,6 @@ def plan_job(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, budget: int | 
     GridError
         Even one layer per slab does not fit the budget.
     """
-    from .field import support_boxes
-
     W, H, K = grid.width, grid.height, grid.layers
     B = opts.bucket if opts.bucket and opts.bucket > 0 else 64
     serial = workers <= 1
@@ -323,7 +317,7 @@ def plan_job(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, budget: int | 
     else:
         T = int(tile)
         if T < 1:
-            raise GridError(f"tile must be >= 1 px, got {tile}")
+            raise OptionError(f"--tile must be >= 1 px, got {tile}")
         T = -(-T // B) * B if opts.bucket and T > B else T
     upper = float(math.ceil(K / 2))
     seconds = None
@@ -359,7 +353,7 @@ def plan_job(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, budget: int | 
     L = K
     if slab is not None:
         if int(slab) < 1:
-            raise GridError(f"slab must be >= 1 layer, got {slab}")
+            raise OptionError(f"--slab must be >= 1 layer, got {slab}")
         L = min(int(slab), max(K, 1))
         if budget is not None and estimate(rpc, L)["total"] > budget:
             raise GridError(f"--max-memory {format_size(budget)} is too small for slabs of {L} layers: "

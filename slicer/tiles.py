@@ -34,6 +34,9 @@ from typing import Iterator
 
 import numpy as np
 
+from .executors import SerialExecutor, map_ordered, open_executor
+from .executors import executor_info as describe
+from .field import support_boxes
 from .grid import SliceGrid
 from .skeleton import Skeleton
 from .slicing import SliceResult, trace, trim
@@ -46,8 +49,6 @@ class _Runner:
     """Traces (slab, tile) pieces of a plan through an executor, in order."""
 
     def __init__(self, skel, plan: TilePlan, opts: TraceOptions, executor, task_threads, progress):
-        from .field import support_boxes
-
         self.skel = skel
         self.plan = plan
         self.opts = dataclasses.replace(opts, threads=task_threads if task_threads else opts.threads)
@@ -67,8 +68,6 @@ class _Runner:
     def run(self, pieces, extent: bool, desc: str) -> Iterator:
         """Yield ``(piece, result or None)`` in ``pieces`` order; a piece is
         ``(i0, j0, k0, w, h, layers)`` in job-grid indices."""
-        from .executors import map_ordered
-
         g = self.plan.grid
         pieces = list(pieces)
 
@@ -209,9 +208,6 @@ def slice_planned(skel: Skeleton, pixel_size: float, pixel_size_y: float | None 
         A SliceResult when the plan has one slab (held in memory), else a
         StreamedResult that traces slab by slab while it is read.
     """
-    from .executors import executor_info as describe
-    from .executors import open_executor
-
     stack = contextlib.ExitStack()
     if executor is None or isinstance(executor, str):
         kind = executor or "serial"
@@ -239,8 +235,6 @@ def slice_planned(skel: Skeleton, pixel_size: float, pixel_size_y: float | None 
 
 
 def _run_plan(skel, plan: TilePlan, opts: TraceOptions, ex, info, progress):
-    from .executors import SerialExecutor
-
     if ex is None:
         ex = SerialExecutor()
     task_threads = info.task_threads if info is not None else None

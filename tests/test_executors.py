@@ -125,7 +125,7 @@ def test_unreachable_scheduler_is_a_clear_error(monkeypatch):
 
     monkeypatch.setattr(slicer.executors, "CONNECT_TIMEOUT", "2s")
     t0 = time.perf_counter()
-    with pytest.raises(GridError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
+    with pytest.raises(OptionError, match="--scheduler: cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
         with open_executor("dask", scheduler="tcp://127.0.0.1:9"):
             pass
     assert time.perf_counter() - t0 < 30

@@ -32,7 +32,7 @@ from shapely import MultiPolygon, Polygon, box
 from contour_checks import (GRID, as_multipolygon, assert_same_fill, evenodd, pixel_centres, sample_layers,
                             write_all)
 from formats import SUFFIXES, WRITERS, writer_for
-from formats.cli import DIR_HOLE, DIR_OUTER, CliAsciiWriter, CliShortWriter, CliWriter, read_cli
+from formats.common_layer import DIR_HOLE, DIR_OUTER, CliAsciiWriter, CliShortWriter, CliWriter, read_cli
 from formats.contour_base import ContourWriter, oriented_polygons
 from formats.svg import SvgWriter
 from formats.threemf_slices import ThreeMFSliceWriter

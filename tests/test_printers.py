@@ -203,7 +203,7 @@ def test_contours_are_placed_like_the_images(ell, tmp_path):
     images, and the CLI box is the plate (its origin the plate's corner)."""
     import shapely
 
-    from formats.cli import read_cli
+    from formats.common_layer import read_cli
 
     zp, cj, cl = tmp_path / "e.zip", tmp_path / "e.json", tmp_path / "e.cli"
     common = ["--printer", "prusa-sl1s", "--at", "30", "20", "--layer-height", "0.25", "-q"]

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from contour_checks import GRID, as_multipolygon, sample_layers, write_all
-from formats.cli import CliAsciiWriter, CliShortWriter, CliWriter, read_cli
+from formats.common_layer import CliAsciiWriter, CliShortWriter, CliWriter, read_cli
 from slicer import Skeleton
 from slicer.grid import SliceGrid
 

@@ -28,10 +28,12 @@ LAYERS = {
     "slicer.job": 3, "slicer.jobspec": 3, "slicer.cli": 3, "slicer.config": 3, "slicer.commands": 3,
     "slicer.__main__": 3,
     "validation": 2,
+    "validation.parts_bench": 3,      # times the whole slice job (run_slice)
     "formats": 1, "sample_lattices": 1,
     "slicer.antialias": 1, "slicer.contours": 1, "slicer.render_output": 1, "slicer.contour": 1,
     "slicer.layers": 1,
     "slicer.check": 1, "slicer.preview": 1,
+    "slicer.printability": 1,         # reads back written layers (formats.readback)
 }
 #: every other slicer.* module is core (layer 0)
 NAMES = {0: "core", 1: "outputs", 2: "validation", 3: "job/CLI"}
@@ -96,7 +98,7 @@ def _targets(mod: str, node) -> list[str]:
 
 def _imports(mod: str):
     """(target, line, inside a function) for every project import of ``mod``."""
-    tree = ast.parse(MODULES[mod].read_text(), str(MODULES[mod]))
+    tree = ast.parse(MODULES[mod].read_text(encoding="utf-8"), str(MODULES[mod]))
     found = []
 
     def visit(node, in_function):
@@ -182,7 +184,7 @@ def test_no_function_level_imports_of_project_modules():
 
 def _names_used(path: Path):
     """(dotted name, line) of every import and every ``a.b`` attribute use in a file."""
-    tree = ast.parse(path.read_text(), str(path))
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             yield from ((a.name, node.lineno) for a in node.names)

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from slicer import GridError, Skeleton
+from slicer import GridError, OptionError, Skeleton
 from slicer.field import support_boxes
 from slicer.grid import make_grid
 from slicer.lattice import generate_lattice
@@ -53,7 +53,7 @@ def test_parse_size(text, expected):
 
 @pytest.mark.parametrize("text", ["2XB", "GB", "-1GB", "lots", "1..5GB", "inf"])
 def test_parse_size_refuses_garbage(text):
-    with pytest.raises(GridError, match="max-memory"):
+    with pytest.raises(OptionError, match="max-memory"):
         parse_size(text)
 
 

@@ -25,6 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
+from sample_lattices import load_sample
+from slicer._kernels.launch import numba_threads
+from slicer.grid import make_grid
+from slicer.layers import write_stack
+from slicer.skeleton import Skeleton
+from slicer.slicing import trace
+
 from . import machine
 
 METHOD_ARGS = {
@@ -37,10 +44,6 @@ METHOD_ARGS = {
 
 def _warmup() -> float:
     """Compile every kernel on a tiny scene; returns the seconds it took."""
-    from slicer import Skeleton
-    from slicer.grid import make_grid
-    from slicer.slicing import trace
-
     s = Skeleton([[0, 0, 0], [0, 0, 1], [1, 0, 1]], [[0, 1], [1, 2]], [[0.3, 0.2], [0.2, 0.3]])
     g = make_grid(s.support_bounds(), 0.2)
     t0 = time.perf_counter()
@@ -61,12 +64,6 @@ def square_bounds(skel, pixels: int):
 def table1(models=("jellyfish", "microstructure"), layers=(512, 1024), pixels=512,
            methods=tuple(METHOD_ARGS), threads=None, write_images=True, repeat=1) -> dict:
     """Run the Table 1 protocol; returns the results as a JSON-ready dict."""
-    from sample_lattices import load_sample
-    from slicer.grid import make_grid
-    from slicer.layers import write_stack
-    from slicer._kernels.launch import numba_threads
-    from slicer.slicing import trace
-
     compile_s = _warmup()
     rows = []
     with numba_threads(threads) as nthreads:

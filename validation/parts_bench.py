@@ -26,7 +26,10 @@ on the machine's load (``Ir`` in the last line callgrind prints)::
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -35,6 +38,7 @@ from pathlib import Path
 import manifold3d
 import numpy as np
 
+from slicer import part_slicing
 from slicer.atomic import write_bytes
 from slicer.job import run_slice
 from slicer.lattice import generate_lattice
@@ -102,12 +106,6 @@ def instrument_meshes_only() -> None:
     instrumentation on for the mesh work only (with ``callgrind_control``), so the
     instruction count is that of cutting the meshes and combining the runs. Run the job
     a second time under callgrind with instrumentation from the start for the total."""
-    import functools
-    import os
-    import subprocess
-
-    from slicer import part_slicing
-
     inner = part_slicing._slice_meshes
 
     @functools.wraps(inner)

@@ -43,6 +43,7 @@ import itertools
 import json
 import math
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,8 +51,17 @@ from typing import Callable
 
 import numpy as np
 
+from slicer._kernels.launch import numba_threads
+from slicer.atomic import write_bytes
+from slicer.errors import SceneError
+from slicer.grid import make_grid
+from slicer.scene_io import load_scene
+from slicer.skeleton import Skeleton
+from slicer.slicing import trace
+
 from . import machine
 from . import reference_field as ref
+from .bench import _warmup
 
 #: voxels with |F - 1| at most this are not counted as mismatches (summation order)
 TOL = 1e-9
@@ -103,8 +113,6 @@ class Case:
 
 
 def _skel(nodes, segs, radii, **kw):
-    from slicer import Skeleton
-
     return Skeleton(np.asarray(nodes, float), np.asarray(segs, np.int64).reshape(-1, 2),
                     np.asarray(radii, float).reshape(-1, 2), **kw)
 
@@ -197,8 +205,6 @@ def _thin(fast):
 def _zero_length(fast):
     # refused scenes; plus a near-zero-length segment in a chain (L = 1e-9 mm with
     # a radius jump, so sigma * |dr| >> L) and an isolated one (no surface at all)
-    from slicer import Skeleton
-
     refuse = [
         (lambda: Skeleton([[0, 0, 0], [1, 0, 0]], [[0, 0]], [[0.5, 0.5]]), ("segment 0", "zero length")),
         (lambda: Skeleton([[0, 0, 0], [0, 0, 0]], [[0, 1]], [[0.5, 0.5]]), ("segment 0", "zero length")),
@@ -216,18 +222,10 @@ def _zero_length(fast):
 
 
 def _load_json(scene):
-    import os
-    import tempfile
-
-    from slicer import load_scene
-
-    fd, path = tempfile.mkstemp(suffix=".json")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(scene, f)
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "scene.json"
+        path.write_text(json.dumps(scene))
         return load_scene(path)
-    finally:
-        os.unlink(path)
 
 
 def _duplicate(fast):
@@ -512,8 +510,6 @@ def span_errors(skel, grid, pix, z_ref):
         ``missing`` (roots on a pixel without spans); None when the tracer
         has no span output.
     """
-    from slicer.slicing import trace
-
     if "spans" not in inspect.signature(trace).parameters:
         return None
     # the default tolerance: a tighter one costs ~ stretch / span_tol on columns
@@ -559,8 +555,6 @@ def voxel_mismatches(skel, grid, F, method, bucket=16):
         ``seconds`` (trace wall time), ``evaluations`` (primitive
         evaluations), ``error`` (an exception raised by the tracer, or None).
     """
-    from slicer.slicing import trace
-
     try:
         res = trace(skel, grid, method=method, bucket=bucket)
     except Exception as exc:  # a crash is a result here: report it, keep going
@@ -596,9 +590,6 @@ def reference_mismatches(skel, grid, F, cap, rng):
 
 def run_case(case: Case, fast: bool, seed: int = 0) -> dict:
     """Build and measure one case; returns a JSON-ready dict (see module docstring)."""
-    from slicer.errors import SceneError
-    from slicer.grid import make_grid
-
     rng = np.random.default_rng(seed)
     t_start = time.perf_counter()
     st = case.build(fast)
@@ -687,8 +678,6 @@ def run_case(case: Case, fast: bool, seed: int = 0) -> dict:
 
 def run_suite(names=None, fast=False, progress=None) -> list[dict]:
     """Run the named cases (all by default); ``progress(row)`` is called after each."""
-    from .bench import _warmup
-
     _warmup()
     rows = []
     for case in CASES:
@@ -754,15 +743,13 @@ def main(argv=None) -> int:
             print(f"{r['case']}: {p}")
     print(f"{len(rows) - len(bad)}/{len(rows)} cases pass; {total:.1f} s")
     if args.json:
-        import numba
-
+        with numba_threads(None) as threads:
+            pass
         out = {"command": machine.command_line("python -m validation.stiff", argv),
-               "machine": machine.describe(), "threads": numba.get_num_threads(), "seconds": total,
+               "machine": machine.describe(), "threads": threads, "seconds": total,
                "cases": rows}
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(args.json).with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(out, indent=1))
-        tmp.replace(args.json)
+        write_bytes(args.json, json.dumps(out, indent=1).encode(), force=True)
     return 1 if bad else 0
 
 

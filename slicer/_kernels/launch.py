@@ -49,9 +49,18 @@ def numba_threads(n: int | None):
         numba.set_num_threads(old)
 
 
+@contextlib.contextmanager
+def one_item_per_thread():
+    """Dynamic schedules of the block's parallel kernels hand out one item
+    (one bucket) at a time: buckets differ widely in cost, so chunks of
+    several would leave threads idle at the end of a launch."""
+    with numba.parallel_chunksize(1):
+        yield
+
+
 def serial():
     """A scope of one Numba thread (small batches: waking the pool costs more than it saves)."""
     return numba_threads(1)
 
 
-__all__ = ["cores", "numba_threads", "serial"]
+__all__ = ["cores", "numba_threads", "one_item_per_thread", "serial"]
