@@ -25,6 +25,17 @@ import time
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, ImageDraw
+
+from slicer.atomic import AtomicDir, check_destination
+from slicer.checks import resolvable, scene_reach, scene_step
+from slicer.contours import layer_contours, layer_mask
+from slicer.errors import GridError
+from slicer.slicing import slice_skeleton
+
+from .bench import square_bounds
+from .metrics import compare_layer, contour_error_bound, polygon_rings, rasterize_rings, summarise
+from .reference_mesh import reference_sections
 
 #: slack for floating-point noise in distance checks, mm
 SLACK = 1e-9
@@ -77,14 +88,7 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
         ``checks`` (name -> bool), ``passed``, ``timings``; ``_sections`` and
         ``_result`` hold the objects the report images are drawn from.
     """
-    from slicer.contours import layer_contours, layer_mask
-    from slicer.checks import resolvable, scene_reach, scene_step
-    from slicer.errors import GridError
-    from slicer.slicing import slice_skeleton
 
-    from .bench import square_bounds
-    from .metrics import compare_layer, contour_error_bound, polygon_rings, summarise
-    from .reference_mesh import reference_sections
 
     tol = resolvable(tol, "contour tolerance", scene_reach(skel), GridError)
     if mesh_edge is not None:                           # before any work
@@ -138,7 +142,6 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
 def assemble_report(rows: list[dict], settings: dict, grid, timings: dict, tol: float, max_hausdorff, min_iou,
                     result, sections, ours) -> dict:
     """The report of :func:`validate` from its per-layer rows: summary, checks, verdict."""
-    from .metrics import summarise
 
     summary = summarise(rows)
     if rows:
@@ -187,7 +190,6 @@ def overlay_image(mask: np.ndarray, ref_rings: list[np.ndarray], ref_raster: np.
                   pixel_size, max_side: int = 1024):
     """A PIL image: our raster in grey, pixels only we have in red, pixels only
     the reference has in blue, the reference outline in green."""
-    from PIL import Image, ImageDraw
 
     H, W = mask.shape
     scale = max(1, min(8, max_side // max(H, W)))
@@ -207,10 +209,7 @@ def overlay_image(mask: np.ndarray, ref_rings: list[np.ndarray], ref_raster: np.
 
 def write_report(report: dict, out, force: bool = False, images: int = 4) -> Path:
     """Write ``report.json`` and overlay PNGs of the worst layers to folder ``out``, atomically."""
-    from slicer.atomic import AtomicDir, check_destination
-    from slicer.contours import layer_mask
 
-    from .metrics import polygon_rings, rasterize_rings
 
     out = Path(out)
     check_destination(out, force)
