@@ -395,9 +395,16 @@ def place(result, printer: Printer, aa: int = 1, at=None) -> Placement:
     if not (math.isclose(spx * aa, ppx, rel_tol=1e-9) and math.isclose(spy * aa, ppy, rel_tol=1e-9)):
         raise GridError(f"{printer.name}: traced pitch {spx:g} x {spy:g} mm does not match the printer's "
                         f"{ppx:g} x {ppy:g} mm / {aa}")
-    j, i = np.divmod(result.pix, g.width)
-    i0, i1, j0, j1 = int(i.min()), int(i.max()), int(j.min()), int(j.max())
-    k_first, k_last = int(result.k0.min()), int(result.k1.max()) - 1
+    box = getattr(result, "footprint", None)            # a streamed result: its extent, found before streaming
+    if box is not None:
+        i0, i1, j0, j1, k_first, k_last = (int(v) for v in box)
+    elif hasattr(result, "pix"):
+        j, i = np.divmod(result.pix, g.width)
+        i0, i1, j0, j1 = int(i.min()), int(i.max()), int(j.min()), int(j.max())
+        k_first, k_last = int(result.k0.min()), int(result.k1.max()) - 1
+    else:
+        raise GridError("placing the model on the plate needs its extent before the layers are streamed "
+                        "(a job traced in several slabs without trimming)")
     W, H = printer.display
     size_x, size_y = (i1 - i0 + 1) * spx, (j1 - j0 + 1) * spy
     height = (k_last - k_first + 1) * g.layer_height

@@ -107,8 +107,11 @@ class StreamedResult:
     """
 
     def __init__(self, runner: _Runner, grid: SliceGrid, origin_ij: tuple[int, int, int], stats: dict,
-                 n_runs: int | None):
+                 n_runs: int | None, footprint: tuple[int, int, int, int, int, int] | None = None):
         self._runner = runner
+        #: (i0, i1, j0, j1, k0, k1), inclusive, on :attr:`grid`: the inside voxels' bounding box, known
+        #: before streaming when the job was trimmed (what placing on a printer's plate needs); else None
+        self.footprint = footprint
         self.grid = grid
         self._o = origin_ij
         self.stats = stats
@@ -273,7 +276,8 @@ def _run_plan(skel, plan: TilePlan, opts: TraceOptions, ex, info, progress):
     i1, j1, k1 = min(box[1] + 1, g.width - 1), min(box[3] + 1, g.height - 1), min(box[5] + 1, g.layers - 1)
     out = g.sub(i0, j0, k0, i1 - i0 + 1, j1 - j0 + 1, k1 - k0 + 1)
     # runs split at slab boundaries were counted once per slab: an upper bound
-    return StreamedResult(runner, out, (i0, j0, k0), stats, runs)
+    footprint = (box[0] - i0, box[1] - i0, box[2] - j0, box[3] - j0, box[4] - k0, box[5] - k0)
+    return StreamedResult(runner, out, (i0, j0, k0), stats, runs, footprint)
 
 
 

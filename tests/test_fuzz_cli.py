@@ -103,7 +103,7 @@ SCALE = {
     "--max-memory": choice(["auto", "none", "64MB", "1.5GiB"], ["1", "0", "-1GB", "1e400GB", "abc",
                                                               "18446744073709551616"]),
     "--executor": st.sampled_from(["serial", "threads"]),
-    "--tile": text_int(1, 64),
+    "--tile": text_int(16, 64),
     "--slab": text_int(1, 8),
     "--workers": text_int(1, 2),
 }
@@ -393,3 +393,23 @@ def test_sigterm_on_the_contour_path_cleans_up(tmp_path):
     proc = start_slice(CUBIC, out, "--format", "svg", "--pixel-size", "0.1", "--contour-tol", "1e-7")
     wait_mid_write(proc, out, size=0)
     interrupt_and_check(proc, out, signal.SIGTERM)
+
+
+# ----------------------------------------------------------------------------- defects the fuzz suite found
+@pytest.mark.parametrize("printer,suffix,extra", [("anycubic-photon-mono", ".pwmo", ["--slab", "1"]),
+                                                  ("elegoo-mars-4-ultra", ".goo", ["--slab", "1", "--aa", "3"]),
+                                                  ("prusa-sl1s", ".svg", ["--slab", "1"])])
+def test_printer_jobs_streamed_in_slabs_are_placed_like_in_memory(printer, suffix, extra, tmp_path):
+    """A printer job traced in several slabs (``--slab``, or a memory budget) is placed on the plate
+    from the extent its first pass found (it raised AttributeError), and writes the same bytes as
+    the job traced in memory."""
+    scene = tmp_path / "strut.json"
+    scene.write_text(json.dumps(STRUT))
+    outs = []
+    for name, more in (("streamed", extra), ("memory", [a for a in extra if a in ("--aa", "3")])):
+        (tmp_path / name).mkdir()
+        out = tmp_path / name / f"x{suffix}"
+        r = CliRunner().invoke(main, ["slice", str(scene), "-o", str(out), "--printer", printer, "-q", *more])
+        assert r.exit_code == 0 and r.exception is None, (r.output, r.exception)
+        outs.append(out.read_bytes())
+    assert outs[0] == outs[1]

@@ -163,6 +163,21 @@ def test_hand_written_package_defaults(tmp_path):
     ('<b:beam v1="2" v2="2"/>', None, "beam 0: v1 = v2 = 2"),
     ('<b:beam v1="0" v2="1"/>', 'radius="-1" minlength="0.0001"', "beamlattice: radius = -1 is not a valid radius"),
 ])
+
+
+@pytest.mark.parametrize("beams,needle", [
+    ('<b:beam v1="0" v2="1" r1="1e-20"/><b:beam v1="1" v2="2"/>',
+     "build item 0, object 1 'strut': beam 0 r1 = 1e-19 mm is below the smallest supported radius 1e-09 mm"),
+    ('<b:beam v1="0" v2="1"/><b:beam v1="1" v2="2" r2="2e8"/>',          # centimetres: 2e9 mm
+     "build item 0, object 1 'strut': beam 1 r2 = 2e+09 mm is beyond the supported magnitude 1e+09 mm"),
+])
+def test_numbers_float64_cannot_resolve_are_named(tmp_path, beams, needle):
+    """docs/scene-format.md "Limits", checked on the placed lattice and named by build item, object,
+    beam and end."""
+    path = hand_3mf(tmp_path / "bad.3mf", beams)
+    with pytest.raises(SceneError) as e:
+        load_scene(path)
+    assert str(e.value).startswith(f"{path}: ") and needle in str(e.value), str(e.value)
 def test_bad_beam_data_named(tmp_path, beams, attrs, needle):
     kw = {"lattice_attrs": attrs} if attrs else {}
     path = hand_3mf(tmp_path / "bad.3mf", beams, **kw)
