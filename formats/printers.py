@@ -371,7 +371,7 @@ def place(result, printer: Printer, aa: int = 1, at=None) -> Placement:
 
     Parameters
     ----------
-    result : slicer.slicing.SliceResult
+    result : slicer.slicing.SliceResult or slicer.tiles.StreamedResult
         Traced with pixel pitch ``printer.pixel_size / aa`` (any origin).
     printer : Printer
     aa : int
@@ -388,23 +388,15 @@ def place(result, printer: Printer, aa: int = 1, at=None) -> Placement:
         than the printer, or has no inside voxel.
     """
     g = result.grid
-    if result.n_runs == 0:
+    box = result.inside_box() if result.n_runs else None
+    if box is None:
         raise GridError("the surface is empty: nothing to place on the plate")
     spx, spy = g.pixel_size
     ppx, ppy = printer.pixel_size
     if not (math.isclose(spx * aa, ppx, rel_tol=1e-9) and math.isclose(spy * aa, ppy, rel_tol=1e-9)):
         raise GridError(f"{printer.name}: traced pitch {spx:g} x {spy:g} mm does not match the printer's "
                         f"{ppx:g} x {ppy:g} mm / {aa}")
-    box = getattr(result, "footprint", None)            # a streamed result: its extent, found before streaming
-    if box is not None:
-        i0, i1, j0, j1, k_first, k_last = (int(v) for v in box)
-    elif hasattr(result, "pix"):
-        j, i = np.divmod(result.pix, g.width)
-        i0, i1, j0, j1 = int(i.min()), int(i.max()), int(j.min()), int(j.max())
-        k_first, k_last = int(result.k0.min()), int(result.k1.max()) - 1
-    else:
-        raise GridError("placing the model on the plate needs its extent before the layers are streamed "
-                        "(a job traced in several slabs without trimming)")
+    i0, i1, j0, j1, k_first, k_last = box
     W, H = printer.display
     size_x, size_y = (i1 - i0 + 1) * spx, (j1 - j0 + 1) * spy
     height = (k_last - k_first + 1) * g.layer_height

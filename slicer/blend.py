@@ -9,12 +9,20 @@
     solid is the union of the per-strut solids; the printed radius near a node
     is the designed one. For one strut both are the same field.
 
-Sound interval inclusions for ``union`` are direct: on a piece of a ray, the
-range of ``max_i f_i`` lies in ``[max_i lo_i, max_i hi_i]`` when each ``f_i``
-lies in ``[lo_i, hi_i]``. Point evaluation (:func:`slicer.field.evaluate`)
-supports both; the tracer, renderer and contours support ``sum`` only for
-now, and refuse ``union`` with :class:`~slicer.errors.OptionError` rather
-than print a summation.
+Slicing traces both, every voxel centre classified exactly as ``F >= 1`` in
+float64 point evaluation (:func:`slicer.field.evaluate`). The union is traced
+strut by strut (:mod:`slicer._kernels.union_trace`): along a ray each strut's
+own field is unimodal on its support interval, so its inside centres are found
+by splitting pieces at centres until a per-strut bound settles them, and the
+struts' runs (and, with ``--aa-z``, their real inside spans) are merged. This
+is the union inclusion read per strut: on a piece where each ``f_i`` lies in
+``[lo_i, hi_i]``, ``max_i f_i`` lies in ``[max_i lo_i, max_i hi_i]``, so the
+piece is inside as soon as one strut's low bound exceeds 1 and outside only
+when every strut's high bound is below 1 (docs/math.md §5.4). Methods
+``interval`` and ``sampling`` trace the union; ``segment`` (steps on the summed
+field's Lipschitz bound) is refused. The renderer and the contour outputs
+(which refine vertices on the summed field) refuse ``union`` with
+:class:`~slicer.errors.OptionError` rather than show or write a summation.
 """
 from __future__ import annotations
 
@@ -23,8 +31,10 @@ from .errors import OptionError
 
 #: blend names
 BLENDS = ("sum", "union")
-#: what the tracer's kernels implement today
-TRACER_BLENDS = ("sum",)
+#: what the tracer's kernels implement
+TRACER_BLENDS = ("sum", "union")
+#: tracing methods that implement ``union``
+UNION_METHODS = ("interval", "sampling")
 
 
 def check_blend(blend, name: str = "--blend") -> str:
@@ -38,27 +48,51 @@ def check_blend(blend, name: str = "--blend") -> str:
     return choice(blend, BLENDS, name)
 
 
-def require_traceable(blend, what: str = "slicing") -> str:
-    """Refuse a blend the ray kernels cannot trace yet.
+def require_traceable(blend, what: str = "slicing", method: str | None = None) -> str:
+    """``blend`` checked for the tracer (and ``method``, when given).
 
     Raises
     ------
     OptionError
-        For ``union``: naming what is missing (the union inclusion in the
-        tracer's and renderer's per-piece bounds).
+        For an unknown blend, or ``union`` with a method other than
+        :data:`UNION_METHODS`.
 
     Examples
     --------
-    >>> require_traceable("sum")
-    'sum'
+    >>> require_traceable("union", method="interval")
+    'union'
     """
     b = check_blend(blend)
-    if b not in TRACER_BLENDS:
-        raise OptionError(f"--blend {b}: {what} with the union blend needs the ray kernels' union inclusion "
-                          f"(the maximum of the per-segment interval bounds on each piece: max of the lows, max "
-                          f"of the highs), which this version of the tracer does not have yet; use --blend sum, "
-                          f"or evaluate the union field at points (slicer.field.evaluate(..., blend='union'))")
+    if b not in TRACER_BLENDS:          # pragma: no cover - every blend is traceable today
+        raise OptionError(f"--blend {b}: {what} does not support this blend")
+    if b == "union" and method is not None and method not in UNION_METHODS:
+        raise OptionError(f"--blend union: {what} with --method {method} is not supported (segment tracing steps "
+                          f"on the summed field's Lipschitz bound); use --method interval or --method sampling")
     return b
 
 
-__all__ = ["BLENDS", "TRACER_BLENDS", "check_blend", "require_traceable"]
+def require_sum(blend, what: str, hint: str | None = None) -> str:
+    """Refuse ``union`` where only the summed field is implemented (``what``:
+    the renderer, the contour outputs; ``hint``: the way out, default
+    ``--blend sum``).
+
+    Raises
+    ------
+    OptionError
+        For ``union``, naming ``what`` and the way out.
+
+    Examples
+    --------
+    >>> require_sum("sum", "rendering")
+    'sum'
+    """
+    b = check_blend(blend)
+    if b != "sum":
+        hint = hint or ("use --blend sum there (slicing to images and printer formats supports "
+                        "--blend union)")
+        raise OptionError(f"--blend {b}: {what} evaluates the summed field only and does not support the union "
+                          f"blend; {hint}")
+    return b
+
+
+__all__ = ["BLENDS", "TRACER_BLENDS", "UNION_METHODS", "check_blend", "require_traceable", "require_sum"]

@@ -109,6 +109,8 @@ def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: boo
     res = traced
     opts = job.trace_options(resolved)
     meta = {"generator": f"skelslice {__version__}", "method": opts.method, "bucket": res.stats["bucket"]}
+    if opts.blend != "sum":
+        meta["blend"] = opts.blend
     if out_opts.scene_name:
         meta["scene"] = out_opts.scene_name
     written: dict = {}
@@ -181,13 +183,13 @@ def _trace(skel: Skeleton, job: SliceJob, resolved: ResolvedJob, *, progress=Non
             executor_info = describe_executor(executor or "serial", scale.workers, scale.scheduler)
         args = (*grid_args, opts.method, opts.bucket, opts.threads, opts.strict, opts.spans)
         plan = plan_slice(*args, max_memory=scale.max_memory, executor_info=executor_info, tile=scale.tile,
-                          slab=scale.slab, sample=True if dry_run else None)
+                          slab=scale.slab, sample=True if dry_run else None, blend=opts.blend)
         if report is not None:
             report(plan.describe())
         if dry_run:
             return plan
         res = slice_planned(*args, plan=plan, executor=executor, executor_info=executor_info,
-                            workers=scale.workers, scheduler=scale.scheduler, progress=progress)
+                            workers=scale.workers, scheduler=scale.scheduler, progress=progress, blend=opts.blend)
     else:
         res = slice_skeleton(*grid_args, **opts.trace_kwargs())
     if res.n_runs == 0 and g.bounds is None:
@@ -218,7 +220,7 @@ def _slice_part_job(part: Part, grid_args: tuple, opts, scale, dry_run: bool, re
             return {**grid.to_dict(), "plan": {"grid": grid.to_dict()}, "plan_text": text, "dry_run": True}
         return slice_part(*args, blend=opts.blend)
     plan = plan_part(*args, max_memory=scale.max_memory, executor_info=executor_info, tile=scale.tile,
-                     slab=scale.slab, sample=True if dry_run else None)
+                     slab=scale.slab, sample=True if dry_run else None, blend=opts.blend)
     if report is not None:
         report(plan.describe())
     if dry_run:

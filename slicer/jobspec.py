@@ -25,7 +25,7 @@ from formats import format_for, writer_for
 from formats.printers import PRINTERS, Printer, PrintSettings, get_printer
 
 from .antialias import check_aa
-from .blend import require_traceable
+from .blend import require_sum, require_traceable
 from .checks import coordinates, fmt_num, integer, magnitude
 from .errors import OptionError
 from .slicing import METHODS
@@ -262,6 +262,11 @@ class SliceJob:
         prn = get_printer(p.printer) if p.printer is not None else None
         name = format_for(self.output.fmt, out, prn.format if prn is not None else "png")
         cls = writer_for(name, out)
+        if t.blend != "sum":
+            if getattr(cls, "kind", "image") == "contours":
+                require_sum(t.blend, f"the {name} format (contours refined on the field)")
+            if self.output.contours is not None:
+                require_sum(t.blend, "--contours (contours refined on the field)")
         if prn is None and cls.default_printer:
             prn = get_printer(cls.default_printer)
         if prn is None and cls.needs_printer:
@@ -327,9 +332,9 @@ def _plate_point(at, prn: Printer | None) -> tuple[float, float]:
 
 
 def _check_trace(t: TraceOptions) -> None:
-    require_traceable(t.blend)
     if t.method not in METHODS:
         raise OptionError(f"unknown method {t.method!r}; choose one of {', '.join(sorted(METHODS))}")
+    require_traceable(t.blend, method=t.method)
     integer(t.bucket, "--bucket", lo=0)
     if t.threads is not None:
         integer(t.threads, "--threads", lo=1)

@@ -30,6 +30,7 @@ from typing import Iterator
 import numpy as np
 
 from .blend import require_traceable
+from .errors import GridError
 from .executors import executor_info as describe
 from .grid import SliceGrid, make_grid
 from .mesh_slicing import Soup, column_spans, combine_intervals, layer_masks, part_op, runs_from_masks
@@ -262,11 +263,11 @@ def slice_part(part, pixel_size: float, pixel_size_y: float | None = None, layer
     if not part.has_meshes:
         return slice_skeleton(part.skeleton, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads,
                               strict, spans, span_tol, blend=blend)
-    require_traceable(blend)
+    require_traceable(blend, method=method)
     grid = part_grid(part, pixel_size, pixel_size_y, layer_height, bounds)
     if part.skeleton is not None:
         lat = trace(part.skeleton, grid, method=method, bucket=bucket, threads=threads, strict=strict,
-                    spans=spans, span_tol=span_tol)
+                    spans=spans, span_tol=span_tol, blend=blend)
     else:
         lat = _empty(grid, spans, method)
     return _finish(part, _slice_meshes(part, lat, spans), bounds is None)
@@ -281,6 +282,12 @@ def plan_part(part: Part, pixel_size: float, pixel_size_y=None, layer_height=Non
     grid = part_grid(part, pixel_size, pixel_size_y, layer_height, bounds)
     return plan_slice(part.skeleton, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict,
                       spans, span_tol, grid=grid, **plan_kw)
+
+
+def _union_box(a, b):
+    """The smallest inclusive index box ``(i0, i1, j0, j1, k0, k1)`` holding boxes ``a`` and ``b``."""
+    return (min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3]), min(a[4], b[4]),
+            max(a[5], b[5]))
 
 
 class PartStreamedResult:
@@ -301,10 +308,29 @@ class PartStreamedResult:
         self.stats = stats
         self._box = (0, 0, 0, grid.width, grid.height, grid.layers)
         self._n_runs = None
+        self._inside = None
         if trimmed:
-            self._box, self._n_runs = self._extent()
+            self._box, self._n_runs, inside = self._extent()
+            if inside is not None:
+                i0, j0, k0 = self._box[:3]
+                self._inside = (inside[0] - i0, inside[1] - i0, inside[2] - j0, inside[3] - j0,
+                                inside[4] - k0, inside[5] - k0)
         i0, j0, k0, w, h, nl = self._box
         self.grid = grid.sub(i0, j0, k0, w, h, nl)
+        self._trimmed = trimmed
+
+    def inside_box(self) -> tuple[int, int, int, int, int, int] | None:
+        """Index box ``(i0, i1, j0, j1, k0, k1)`` (inclusive) of the inside voxels on
+        :attr:`grid`, from the extent pass (see :meth:`slicer.tiles.StreamedResult.inside_box`).
+
+        Raises
+        ------
+        GridError
+            The job was not trimmed (explicit bounds).
+        """
+        if not self._trimmed:
+            raise GridError("the inside voxels' extent is known before streaming only for jobs without --bounds")
+        return self._inside
 
     def _combined_slabs(self, stream) -> Iterator[tuple[int, PartResult]]:
         """(first job layer, combined slab result on the full-width slab grid)."""
@@ -324,12 +350,16 @@ class PartStreamedResult:
         self.stats.update(mesh_seconds=wall, mesh_cpu_seconds=cpu)
 
     def _extent(self):
-        box = None
+        box = inside = None
         runs = 0
         for k, res in self._combined_slabs(self._make()):
             if res.n_runs == 0 and not (res.has_spans and len(res.span_pix)):
                 continue
             runs += res.n_runs
+            r = res.inside_box()
+            if r is not None:
+                r = r[:4] + (r[4] + k, r[5] + k)
+                inside = r if inside is None else _union_box(inside, r)
             j, i = np.divmod(np.concatenate([res.pix, res.span_pix]) if res.has_spans else res.pix, res.grid.width)
             ka = [int(res.k0.min())] if res.n_runs else []
             kb = [int(res.k1.max()) - 1] if res.n_runs else []
@@ -338,14 +368,13 @@ class PartStreamedResult:
                 ka.append(int(np.floor(u[0] + 0.5)))
                 kb.append(min(int(np.floor(u[1] + 0.5)), res.grid.layers - 1))
             b = (int(i.min()), int(i.max()), int(j.min()), int(j.max()), k + min(ka), k + max(kb))
-            box = b if box is None else (min(box[0], b[0]), max(box[1], b[1]), min(box[2], b[2]),
-                                         max(box[3], b[3]), min(box[4], b[4]), max(box[5], b[5]))
+            box = b if box is None else _union_box(box, b)
         g = self._full
         if box is None:
-            return (0, 0, 0, g.width, g.height, 0), 0
+            return (0, 0, 0, g.width, g.height, 0), 0, None
         i0, j0, k0 = max(box[0] - 1, 0), max(box[2] - 1, 0), max(box[4] - 1, 0)
         i1, j1, k1 = min(box[1] + 1, g.width - 1), min(box[3] + 1, g.height - 1), min(box[5] + 1, g.layers - 1)
-        return (i0, j0, k0, i1 - i0 + 1, j1 - j0 + 1, k1 - k0 + 1), runs
+        return (i0, j0, k0, i1 - i0 + 1, j1 - j0 + 1, k1 - k0 + 1), runs, inside
 
     @property
     def n_runs(self) -> int:
@@ -401,24 +430,25 @@ def slice_part_planned(part, pixel_size: float, pixel_size_y=None, layer_height=
     part = as_part(part)
     run_kw = dict(max_memory=max_memory, executor=executor, executor_info=executor_info, workers=workers,
                   scheduler=scheduler, tile=tile)
+    run_kw["blend"] = require_traceable(blend, method=method)
     if not part.has_meshes:
-        require_traceable(blend)
         if plan is None:
             info = executor_info if executor_info is not None or not (executor is None or isinstance(executor, str)) \
                 else describe(executor or "serial", workers, scheduler)
             plan = plan_slice(part.skeleton, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads,
-                              strict, spans, span_tol, max_memory=max_memory, executor_info=info, tile=tile, slab=slab)
+                              strict, spans, span_tol, max_memory=max_memory, executor_info=info, tile=tile, slab=slab,
+                              blend=blend)
         return slice_planned(part.skeleton, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads,
                              strict, spans, span_tol, plan=plan, progress=progress, **run_kw)
     if part.skeleton is None:
         return slice_part(part, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict,
                           spans, span_tol)
-    require_traceable(blend)
     if plan is None:
         info = executor_info if executor_info is not None or not (executor is None or isinstance(executor, str)) \
             else describe(executor or "serial", workers, scheduler)
         plan = plan_part(part, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict,
-                         spans, span_tol, max_memory=max_memory, executor_info=info, tile=tile, slab=slab)
+                         spans, span_tol, max_memory=max_memory, executor_info=info, tile=tile, slab=slab,
+                         blend=blend)
     args = (part.skeleton, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict, spans,
             span_tol)
 

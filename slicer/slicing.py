@@ -16,6 +16,7 @@ import numpy as np
 from ._kernels.launch import numba_threads, one_item_per_thread
 from ._kernels.raysupport import kprime_max
 from ._kernels.trace import RUNS_FULL, trace_buckets
+from ._kernels.union_trace import trace_union_buckets
 from .blend import require_traceable
 from .buckets import Buckets, build_buckets, thread_order
 from .errors import GridError
@@ -71,6 +72,15 @@ class SliceResult:
     @property
     def n_runs(self) -> int:
         return int(self.pix.shape[0])
+
+    def inside_box(self) -> tuple[int, int, int, int, int, int] | None:
+        """Index box ``(i0, i1, j0, j1, k0, k1)`` (inclusive) of the inside
+        voxels on :attr:`grid`, or None when nothing is inside."""
+        if self.n_runs == 0:
+            return None
+        j, i = np.divmod(self.pix, self.grid.width)
+        return (int(i.min()), int(i.max()), int(j.min()), int(j.max()), int(self.k0.min()),
+                int(self.k1.max()) - 1)
 
     def iter_layers(self, value: int = 255) -> Iterator[np.ndarray]:
         """Yield each layer as a (height, width) uint8 image, bottom layer first.
@@ -172,7 +182,8 @@ def coverage_layers(span_pix: np.ndarray, u0: np.ndarray, u1: np.ndarray, layers
 
 def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int = 64,
           threads: int | None = None, strict: bool = False, cut_support: bool = True,
-          batch: int = 256, spans: bool = False, span_tol: float | None = None) -> SliceResult:
+          batch: int = 256, spans: bool = False, span_tol: float | None = None,
+          blend: str = "sum") -> SliceResult:
     """Classify every voxel centre of ``grid`` (no trimming).
 
     Parameters
@@ -200,9 +211,14 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
     span_tol : float, optional, mm
         Position tolerance of the span ends (default ``layer_height / 64``;
         at least ``layer_height / 65536``).
+    blend : {"sum", "union"}
+        ``union`` (``F = max_i f_i``) is traced strut by strut
+        (:mod:`slicer._kernels.union_trace`), with the interval or sampling
+        method; ``cut_support`` has no effect there.
     """
     if method not in METHODS:
         raise GridError(f"unknown method {method!r}; choose one of {sorted(METHODS)}")
+    union = require_traceable(blend, method=method) == "union"
     span_tol = _check_spans(method, spans, span_tol, grid.layer_height)
     bk = build_buckets(skel, grid, bucket)
     B = bk.size
@@ -216,12 +232,13 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
     xpix_parts, xz_parts = [], []
     nevals = 0
     t0 = time.perf_counter()
+    kern = trace_union_buckets if union else trace_buckets
     with numba_threads(threads) as nthreads:
         sizes = np.diff(bk.offsets)
         for s in range(0, len(todo), batch):
             chunk = thread_order(todo[s:s + batch], sizes[todo[s:s + batch]], nthreads)
             cap = B * B * 4
-            results = _run_batch(trace_buckets, METHODS[method], chunk, bk, grid, n, sigma, norm,
+            results = _run_batch(kern, METHODS[method], chunk, bk, grid, n, sigma, norm,
                                  kmax, strict, cut_support, cap, RUNS_FULL, spans, span_tol)
             for bidx, nrun, rk0, rk1, ne, nx, xz in results:
                 nevals += ne
@@ -246,6 +263,8 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
         k1 = np.zeros(0, np.int64)
     stats = {"method": method, "bucket": B, "evaluations": int(nevals),
              "trace_seconds": elapsed, "threads": int(nthreads)}
+    if union:
+        stats["blend"] = "union"
     res = SliceResult(grid, pix, k0, k1, stats)
     if spans:
         stats["span_tol"] = span_tol
@@ -406,8 +425,8 @@ def slice_skeleton(skel: Skeleton, pixel_size: float, pixel_size_y: float | None
         Real-valued inside spans per pixel column, ends to ``span_tol`` mm
         (default layer height / 64); interval method only. See :func:`trace`.
     blend : {"sum", "union"}
-        How segment fields combine (:mod:`slicer.blend`); the tracer supports
-        ``"sum"`` and refuses ``"union"`` (OptionError) until its kernels do.
+        How segment fields combine (:mod:`slicer.blend`): ``"union"`` classifies
+        every centre as ``max_i f_i >= 1`` (interval or sampling method).
 
     Returns
     -------
@@ -420,12 +439,12 @@ def slice_skeleton(skel: Skeleton, pixel_size: float, pixel_size_y: float | None
     >>> r.grid.width, r.grid.layers
     (9, 21)
     """
-    require_traceable(blend)
+    require_traceable(blend, method=method)
     if skel.n_segments == 0:
         raise GridError("the scene has no segments: nothing to slice")
     grid = make_grid(skel.support_bounds(), pixel_size, pixel_size_y, layer_height, bounds)
     res = trace(skel, grid, method=method, bucket=bucket, threads=threads, strict=strict,
-                spans=spans, span_tol=span_tol)
+                spans=spans, span_tol=span_tol, blend=blend)
     return res if bounds is not None else trim(res)
 
 

@@ -398,9 +398,11 @@ def plan_slice(skel: Skeleton, pixel_size: float, pixel_size_y: float | None = N
                executor_info=None, tile: int | None = None, sample: bool | None = None,
                layer_bytes_per_pixel: float | None = None,
                process_bytes: int | None = None, slab: int | None = None,
-               grid: SliceGrid | None = None) -> TilePlan:
+               grid: SliceGrid | None = None, blend: str = "sum") -> TilePlan:
     """The plan :func:`slice_planned` would follow (grid checks included),
     without tracing more than the sample. Used by ``--dry-run``.
+
+    ``blend``: as :func:`slicer.slicing.slice_skeleton` (the sample is traced with it).
 
     ``layer_bytes_per_pixel`` defaults to :data:`BYTES_PER_LAYER_PIXEL`, or
     :data:`BYTES_PER_COVERAGE_PIXEL` with spans (float coverage layers).
@@ -413,7 +415,7 @@ def plan_slice(skel: Skeleton, pixel_size: float, pixel_size_y: float | None = N
     trim_output = bounds is None and grid is None
     if grid is None:
         grid = make_grid(skel.support_bounds(), pixel_size, pixel_size_y, layer_height, bounds)
-    opts = TraceOptions(method, bucket, threads, strict, spans, span_tol)
+    opts = TraceOptions(method, bucket, threads, strict, spans, span_tol, blend)
     workers = executor_info.workers if executor_info is not None and executor_info.kind != "serial" else 1
     procs = workers if executor_info is not None and executor_info.kind == "processes" else 0
     if executor_info is not None and executor_info.kind == "dask" and executor_info.address \

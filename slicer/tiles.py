@@ -34,6 +34,7 @@ from typing import Iterator
 
 import numpy as np
 
+from .errors import GridError
 from .executors import SerialExecutor, map_ordered, open_executor
 from .executors import executor_info as describe
 from .field import support_boxes
@@ -107,15 +108,13 @@ class StreamedResult:
     """
 
     def __init__(self, runner: _Runner, grid: SliceGrid, origin_ij: tuple[int, int, int], stats: dict,
-                 n_runs: int | None, footprint: tuple[int, int, int, int, int, int] | None = None):
+                 n_runs: int | None, box: tuple[int, ...] | None = None):
         self._runner = runner
-        #: (i0, i1, j0, j1, k0, k1), inclusive, on :attr:`grid`: the inside voxels' bounding box, known
-        #: before streaming when the job was trimmed (what placing on a printer's plate needs); else None
-        self.footprint = footprint
         self.grid = grid
         self._o = origin_ij
         self.stats = stats
         self._n_runs = n_runs
+        self._box = box
         self.has_spans = runner.opts.spans
         self._close = None
 
@@ -133,6 +132,21 @@ class StreamedResult:
         """Inside runs (known before streaming when the job was trimmed; else
         counted as slabs are produced)."""
         return int(self._n_runs or 0)
+
+    def inside_box(self) -> tuple[int, int, int, int, int, int] | None:
+        """Index box ``(i0, i1, j0, j1, k0, k1)`` (inclusive) of the inside
+        voxels on :attr:`grid` (see :meth:`SliceResult.inside_box`), known
+        from the extent pass of a trimmed job; None when nothing is inside.
+
+        Raises
+        ------
+        GridError
+            The job was not trimmed (explicit bounds), so the box is unknown
+            before the slabs are traced.
+        """
+        if self._box is None:
+            raise GridError("the inside voxels' extent is known before streaming only for jobs without --bounds")
+        return self._box
 
     def iter_slabs(self) -> Iterator[SliceResult]:
         """Each slab as a SliceResult on its sub-grid of :attr:`grid`, bottom first."""
@@ -177,12 +191,12 @@ def slice_planned(skel: Skeleton, pixel_size: float, pixel_size_y: float | None 
                   spans: bool = False, span_tol: float | None = None, *, max_memory=None,
                   executor=None, executor_info=None, workers: int | None = None,
                   scheduler: str | None = None, tile: int | None = None,
-                  progress: bool | None = None, plan: TilePlan | None = None):
+                  progress: bool | None = None, plan: TilePlan | None = None, blend: str = "sum"):
     """:func:`slicer.slicing.slice_skeleton` within a memory budget, on any executor.
 
     Parameters
     ----------
-    skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict
+    skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict, blend
         As :func:`slicer.slicing.slice_skeleton`.
     spans, span_tol
         As :func:`slicer.slicing.trace`.
@@ -217,14 +231,16 @@ def slice_planned(skel: Skeleton, pixel_size: float, pixel_size_y: float | None 
         if plan is None:    # plan (and refuse absurd requests) before any cluster starts
             plan = plan_slice(skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads,
                               strict, spans, span_tol, max_memory=max_memory,
-                              executor_info=executor_info or describe(kind, workers, scheduler), tile=tile)
+                              executor_info=executor_info or describe(kind, workers, scheduler), tile=tile,
+                              blend=blend)
         ex, info = stack.enter_context(open_executor(kind, workers, scheduler))
     else:
         ex, info = executor, executor_info
         if plan is None:
             plan = plan_slice(skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads,
-                              strict, spans, span_tol, max_memory=max_memory, executor_info=info, tile=tile)
-    opts = TraceOptions(method, bucket, threads, strict, spans, span_tol)
+                              strict, spans, span_tol, max_memory=max_memory, executor_info=info, tile=tile,
+                              blend=blend)
+    opts = TraceOptions(method, bucket, threads, strict, spans, span_tol, blend)
     try:
         res = _run_plan(skel, plan, opts, ex, info, progress)
     except BaseException:
@@ -275,9 +291,9 @@ def _run_plan(skel, plan: TilePlan, opts: TraceOptions, ex, info, progress):
     i0, j0, k0 = max(box[0] - 1, 0), max(box[2] - 1, 0), max(box[4] - 1, 0)
     i1, j1, k1 = min(box[1] + 1, g.width - 1), min(box[3] + 1, g.height - 1), min(box[5] + 1, g.layers - 1)
     out = g.sub(i0, j0, k0, i1 - i0 + 1, j1 - j0 + 1, k1 - k0 + 1)
+    inside = (box[0] - i0, box[1] - i0, box[2] - j0, box[3] - j0, box[4] - k0, box[5] - k0)
     # runs split at slab boundaries were counted once per slab: an upper bound
-    footprint = (box[0] - i0, box[1] - i0, box[2] - j0, box[3] - j0, box[4] - k0, box[5] - k0)
-    return StreamedResult(runner, out, (i0, j0, k0), stats, runs, footprint)
+    return StreamedResult(runner, out, (i0, j0, k0), stats, runs, inside)
 
 
 

@@ -21,7 +21,7 @@ from .slicing import SliceResult, trace
 class TraceOptions:
     """Tracer settings shared by every tile (see :func:`slicer.slicing.trace`).
 
-    ``blend`` (:mod:`slicer.blend`) is checked by the job; the kernels trace ``sum``.
+    ``blend`` (:mod:`slicer.blend`) is checked by the job and passed to the tracer.
     """
 
     method: str = "interval"
@@ -36,6 +36,8 @@ class TraceOptions:
         kw = dict(method=self.method, bucket=self.bucket, threads=self.threads, strict=self.strict)
         if self.spans:
             kw.update(spans=True, span_tol=self.span_tol)
+        if self.blend != "sum":
+            kw.update(blend=self.blend)
         return kw
 
 

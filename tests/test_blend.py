@@ -1,11 +1,10 @@
-"""Blend operators: the union field at points, the refusal until the tracer has it, the node bulge.
+"""Blend operators: the union field at points, the tracer's union, the refusals, the node bulge.
 
-The tests of the tracer's union blend are ``xfail(strict=True)``: they fail
-today because ``slice_skeleton(..., blend="union")`` is refused (OptionError),
-and turn red the day the kernels trace the union and someone forgets to
-enable them. What the kernels must do: on each piece of a ray, the union's
-interval is ``[max_i lo_i, max_i hi_i]`` of the per-segment intervals (max of
-the lows, max of the highs), and the point field is ``max_i f_i``.
+The tracer's union blend is tested in depth in ``tests/test_union_trace.py``;
+here: one strut traced with either blend is the same solid, a 12-valent node
+traced with the union is the union of the struts' own solids, and the
+commands that only implement the sum (rendering, contour outputs) refuse the
+union by name.
 """
 from __future__ import annotations
 
@@ -18,7 +17,9 @@ from slicer.errors import OptionError
 from slicer.field import evaluate
 from slicer.skeleton import Skeleton
 from slicer.slicing import slice_skeleton
+import validation.union_validate as uv
 from validation.bulge import bulge, node
+from validation.union_validate import validate_union
 
 RNG = np.random.default_rng(7)
 NODE = node(12, 0.5, 3.0)
@@ -58,22 +59,38 @@ def test_unknown_blend_refused():
         evaluate(NODE, [[0, 0, 0]], blend="smooth")
 
 
-def test_tracer_refuses_union_naming_what_is_missing():
+def test_tracer_refuses_union_with_segment_tracing():
     with pytest.raises(OptionError) as e:
-        slice_skeleton(NODE, 0.1, blend="union")
+        slice_skeleton(NODE, 0.1, blend="union", method="segment")
     msg = str(e.value)
-    assert "union inclusion" in msg and "max of the lows, max of the highs" in msg and "--blend sum" in msg
+    assert "--blend union" in msg and "--method segment" in msg and "--method interval" in msg
 
 
-@pytest.mark.parametrize("cmd", [["slice", "-o", "OUT", "--pixel-size", "0.1"], ["render", "-o", "OUT.png"],
-                                 ["validate", "--pixel-size", "0.1"]])
-def test_commands_refuse_union(tmp_path, cmd):
+@pytest.mark.parametrize("cmd, what", [
+    (["render", "-o", "OUT.png"], "rendering"),
+    (["slice", "-o", "OUT.svg", "--pixel-size", "0.1"], "svg format"),
+    (["slice", "-o", "OUT.png", "--pixel-size", "0.1", "--contours", "OUT.geojson"], "--contours"),
+    (["slice", "-o", "OUT.png", "--pixel-size", "0.1", "--method", "segment"], "--method segment"),
+])
+def test_commands_refuse_union_where_only_the_sum_is_implemented(tmp_path, cmd, what):
     scene = tmp_path / "s.obj"
     scene.write_text("v 0 0 0 0.5\nv 0 0 3 0.5\nl 1 2\n")
     args = [a.replace("OUT", str(tmp_path / "out")) for a in cmd]
     r = CliRunner().invoke(main, [args[0], str(scene), *args[1:], "--blend", "union"])
-    assert r.exit_code == 2 and "union inclusion" in r.output and "Traceback" not in r.output
-    assert not (tmp_path / "out").exists() and not (tmp_path / "out.png").exists()
+    assert r.exit_code == 2 and "--blend union" in r.output and what in r.output and "Traceback" not in r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.obj"]
+
+
+def test_slice_command_traces_the_union(tmp_path):
+    scene = tmp_path / "s.obj"
+    scene.write_text("v 0 0 0 0.5\nv 0 0 3 0.5\nv 2 0 3 0.5\nl 1 2\nl 2 3\n")
+    outs = {}
+    for blend in ("sum", "union"):
+        out = tmp_path / f"{blend}.png"
+        r = CliRunner().invoke(main, ["slice", str(scene), "-o", str(out), "--pixel-size", "0.1", "--blend", blend])
+        assert r.exit_code == 0, r.output
+        outs[blend] = b"".join(f.read_bytes() for f in sorted(out.iterdir()) if f.suffix == ".png")
+    assert outs["sum"] != outs["union"]     # the elbow bulges with the sum
 
 
 def test_info_with_union_drops_the_duplicate_warning(tmp_path):
@@ -92,9 +109,7 @@ def test_node_bulge():
     assert rows["union"]["radius_near_node_mm"] == pytest.approx(0.5, rel=1e-3)
 
 
-# ----------------------------------------------------------------------------- the tracer's union (not yet)
-@pytest.mark.xfail(strict=True, raises=OptionError,
-                   reason="the tracer's kernels do not trace the union blend yet (slice_skeleton refuses it)")
+# ----------------------------------------------------------------------------- the tracer's union
 def test_tracer_union_of_one_strut_equals_sum():
     s = Skeleton([[0, 0, 0], [0.3, 0.2, 4.0]], [[0, 1]], [[0.6, 0.4]])
     a = slice_skeleton(s, 0.07, blend="union")
@@ -102,11 +117,9 @@ def test_tracer_union_of_one_strut_equals_sum():
     assert a.grid == b.grid and np.array_equal(a.volume(), b.volume())
 
 
-@pytest.mark.xfail(strict=True, raises=OptionError,
-                   reason="the tracer's kernels do not trace the union blend yet (slice_skeleton refuses it)")
 def test_tracer_union_at_a_node_is_the_union_of_the_struts():
     """Every voxel of the union blend is inside exactly when some strut's own field is >= 1
-    (centres within 1e-9 of a strut's surface are left out)."""
+    (no tolerance: both evaluate each strut's field at the same points)."""
     bounds = (-3.5, -3.5, -3.5, 3.5, 3.5, 3.5)
     res = slice_skeleton(NODE, 0.1, bounds=bounds, blend="union")
     g = res.grid
@@ -115,6 +128,24 @@ def test_tracer_union_at_a_node_is_the_union_of_the_struts():
     per = np.stack([evaluate(Skeleton(NODE.nodes, NODE.segments[i:i + 1], NODE.radii[i:i + 1]), p)[0]
                     for i in range(NODE.n_segments)])
     want = (per >= 1.0).any(axis=0)
-    sure = np.all(np.abs(per - 1.0) > 1e-9, axis=0)
     got = res.volume().reshape(-1)
-    assert np.array_equal(got[sure], want[sure])
+    assert np.array_equal(got, want) and want.sum() > 1000
+
+
+def test_validate_union_against_the_manifold_union_of_the_struts(tmp_path, monkeypatch):
+    """validate --blend union passes on a node; traced with the sum instead, the
+    same report fails (the bulge is outside the union of the struts)."""
+    sk = node(12, 0.5, 2.0)
+    rep = validate_union(sk, pixel_size=0.08, layers_checked=3)
+    assert rep["passed"] and rep["layers"] and all(r["pixel_mismatch_unexplained"] == 0 for r in rep["layers"])
+    real = uv.slice_skeleton
+    monkeypatch.setattr(uv, "slice_skeleton", lambda *a, **k: real(*a, **{**k, "blend": "sum"}))
+    bad = validate_union(sk, pixel_size=0.08, layers_checked=3)
+    assert not bad["passed"] and not bad["checks"]["contours_match_raster"]
+    monkeypatch.undo()
+    scene = tmp_path / "n.json"
+    sk.save(scene)
+    r = CliRunner().invoke(main, ["validate", str(scene), "--pixel-size", "0.1", "--layers-checked", "2",
+                                  "--blend", "union"])
+    assert r.exit_code == 0, r.output
+    assert "[pass] contours_match_raster" in r.output

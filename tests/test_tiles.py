@@ -14,6 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from formats.printers import get_printer, place
 from slicer import GridError, OptionError, Skeleton
 from slicer.field import support_boxes
 from slicer.grid import make_grid
@@ -291,3 +292,28 @@ def test_streaming_bounds_the_memory_of_runs():
 
     big, small = _peak(consume(one)), _peak(consume(many))
     assert small < big / 3, (small, big)
+
+
+def test_streamed_result_is_placed_on_a_plate_like_the_untiled_one(lattice, reference):
+    """A multi-slab job knows its inside box from the extent pass, so a printer
+    placement needs no second trace and lands where the in-memory job's does."""
+    prn = get_printer("prusa-sl1s")
+    assert prn.pixel_size == (PX, PX)
+    ref, _ = reference
+    plan = plan_slice(lattice, PX, tile=32, max_memory=_budget(lattice, 3, pixel_size=PX, tile=32),
+                      process_bytes=0, sample=True)
+    res = slice_planned(lattice, PX, plan=plan, progress=False)
+    assert isinstance(res, StreamedResult) and plan.n_slabs > 1
+    assert res.inside_box() == ref.inside_box()
+    j, i = np.divmod(ref.pix, ref.grid.width)
+    assert ref.inside_box() == (i.min(), i.max(), j.min(), j.max(), ref.k0.min(), ref.k1.max() - 1)
+    assert place(res, prn, at=(40.0, 30.0)) == place(ref, prn, at=(40.0, 30.0))
+
+
+def test_streamed_result_without_trim_does_not_guess_its_box(lattice):
+    bounds = (-0.5, -0.5, 0.3, 5.5, 3.7, 3.9)
+    kw = dict(pixel_size=PX, layer_height=0.07, bounds=bounds, tile=32)
+    plan = plan_slice(lattice, **kw, max_memory=_budget(lattice, 4, **kw), process_bytes=0, sample=True)
+    res = slice_planned(lattice, PX, layer_height=0.07, bounds=bounds, plan=plan, progress=False)
+    with pytest.raises(GridError, match="without --bounds"):
+        res.inside_box()

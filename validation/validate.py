@@ -55,6 +55,19 @@ def pick_layers(result, n: int) -> list[int]:
     return sorted({int(ks[int(round(p))]) for p in pos})
 
 
+def default_pitch(skel, pixel_size, pixels: int, bounds):
+    """``(pixel_size, bounds)`` of a validation: without ``pixel_size``, a
+    ``pixels`` x ``pixels`` image over the model's support box (and that
+    square box as the bounds unless given)."""
+    if pixel_size is None:
+        if int(pixels) < 2:
+            raise GridError(f"pixels must be >= 2, got {pixels}")
+        sq, pixel_size = square_bounds(skel, int(pixels))
+        if bounds is None:
+            bounds = sq
+    return pixel_size, bounds
+
+
 def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_size_y=None,
              layer_height=None, bounds=None, method: str = "interval", bucket: int = 64,
              threads=None, strict: bool = False, mesh_edge: float | None = None,
@@ -79,7 +92,8 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
     max_hausdorff : float, optional, mm
     min_iou : float, optional
     blend : {"sum", "union"}
-        Passed to the slicer (which traces ``sum`` only, for now).
+        Passed to the slicer. The reference and the contour metrics are those of the
+        summed field, so ``skelslice validate`` refuses ``union``.
 
     Returns
     -------
@@ -88,17 +102,10 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
         ``checks`` (name -> bool), ``passed``, ``timings``; ``_sections`` and
         ``_result`` hold the objects the report images are drawn from.
     """
-
-
     tol = resolvable(tol, "contour tolerance", scene_reach(skel), GridError)
     if mesh_edge is not None:                           # before any work
         scene_step(mesh_edge, "mesh edge", skel, GridError)
-    if pixel_size is None:
-        if int(pixels) < 2:
-            raise GridError(f"pixels must be >= 2, got {pixels}")
-        sq, pixel_size = square_bounds(skel, int(pixels))
-        if bounds is None:
-            bounds = sq
+    pixel_size, bounds = default_pitch(skel, pixel_size, pixels, bounds)
     t0 = time.perf_counter()
     res = slice_skeleton(skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict,
                          blend=blend)

@@ -107,8 +107,9 @@ def command(scene, radius, json_out, force, quiet, verbose, **options):
     if json_out is not None:
         check_not_input(json_out, scene)
         check_destination(Path(json_out), force)
+    blend = options.get("blend") or "sum"
     stack, skel, _res, _resolved = checked_stack(scene, radius, options)
-    report = check_stack(stack, skel, opts)
+    report = check_stack(stack, skel, opts, blend=blend)
     if json_out is not None:
         report.write_json(json_out, force)
     if not quiet:

@@ -7,6 +7,7 @@ import click
 from tqdm import tqdm
 
 from ..atomic import check_destination
+from ..blend import require_sum
 from ..config import config_option
 from ..contours import iter_contours
 from ..job import check_not_input, plate_placement
@@ -15,7 +16,7 @@ from ..printability import check_stack
 from ..render import render
 from ..scene_io import load_scene
 from ..slicing import SliceResult
-from .check import check_options, checked_stack, options_of
+from .check import check_options, checked_stack, is_output, options_of
 from .options import grid_options, print_options, radius_option, trace_options
 
 #: default contour tolerance of a scene's preview: the traced pixel / this
@@ -55,6 +56,12 @@ def command(source, out, radius, no_check, contours_file, no_contours, contour_t
     plot and a transparent render of the part. Opens from disk, no network.
     """
     opts = options_of(options)
+    blend = options.get("blend") or "sum"
+    if blend != "sum" and not is_output(source):
+        if not no_contours and contours_file is None:
+            require_sum(blend, "preview's contour overlay", "pass --no-contours (or --contours FILE)")
+        if not no_render:
+            require_sum(blend, "preview's scene render", "pass --no-render")
     check_not_input(out, source, scene_file, contours_file)
     check_destination(Path(out), force)
     stack, skel, res, resolved = checked_stack(source, radius, options)
@@ -66,7 +73,7 @@ def command(source, out, radius, no_check, contours_file, no_contours, contour_t
             builder.add(k, img)
     else:
         thin_skel = skel if skel is not None else (scene if stack.frame == "scene" else None)
-        report = check_stack(stack, thin_skel, opts, on_layer=builder.add)
+        report = check_stack(stack, thin_skel, opts, on_layer=builder.add, blend=blend)
     contours = None
     if contours_file is not None:
         contours = read_contours(contours_file)

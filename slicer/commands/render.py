@@ -5,7 +5,7 @@ import click
 
 from ..render import CAMERAS, VIEWS
 from ..render_output import run_render
-from ..blend import require_traceable
+from ..blend import require_sum
 from .options import blend_option, load_part_from, part_options, radius_option
 
 
@@ -47,7 +47,7 @@ def command(scene, out, size, view, camera, fov, eye, target, opacity, max_opaci
             repair, blend, force, quiet):
     """Render SCENE to a PNG: every crossing of every ray, shaded and
     composited front to back as semi-transparent layers (a part's meshes too)."""
-    require_traceable(blend, "rendering")
+    require_sum(blend, "rendering (the renderer's ray kernels)")
     skel = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet)
     st = run_render(skel, out, roots_out=roots_out, force=force, transparent=transparent, size=size,
                     view=view, camera=camera, fov=fov, eye=eye or None, target=target or None,

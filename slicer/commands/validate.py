@@ -7,10 +7,11 @@ import sys
 import click
 
 from validation.parts import validate_part
+from validation.union_validate import validate_union
 from validation.validate import format_table, validate, write_report
 
 from ..atomic import check_destination
-from ..blend import require_traceable
+from ..blend import require_sum, require_traceable
 from .options import grid_options, load_part_from, part_options, radius_option, trace_options
 
 
@@ -37,7 +38,8 @@ def command(scene, pixel_size, pixels, pixel_size_y, layer_height, bounds, metho
             radius, mesh_edge, layers_checked, contour_tol, max_hausdorff, min_iou, report_dir, force, as_json,
             solids, clips_inside, clips_outside, repair):
     """Slice SCENE and compare layers with cross-sections of the meshed field
-    (for a part: combined with its meshes by manifold3d booleans).
+    (for a part: combined with its meshes by manifold3d booleans; with
+    --blend union: each strut meshed alone, the struts unioned by manifold3d).
 
     Prints per layer: IoU and XOR area against the reference, contour
     Hausdorff distance (um and pixels), the reference mesh's own error bound
@@ -51,13 +53,16 @@ def command(scene, pixel_size, pixels, pixel_size_y, layer_height, bounds, metho
     """
     if report_dir is not None:
         check_destination(report_dir, force)   # before any work
-    require_traceable(blend)
+    union = require_traceable(blend, "validate", method) == "union"
     part = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet=as_json)
-    run = validate_part if part.has_meshes else validate
+    if union and part.has_meshes:
+        require_sum(blend, "validate of a part with meshes")
+    run = validate_part if part.has_meshes else (validate_union if union else validate)
+    kw = {} if union else {"blend": blend}
     rep = run(part if part.has_meshes else part.skeleton, pixel_size=pixel_size, pixels=pixels,
               pixel_size_y=pixel_size_y, layer_height=layer_height, bounds=bounds or None, method=method,
               bucket=bucket, threads=threads, strict=strict, mesh_edge=mesh_edge, layers_checked=layers_checked,
-              tol=contour_tol, max_hausdorff=max_hausdorff, min_iou=min_iou, blend=blend)
+              tol=contour_tol, max_hausdorff=max_hausdorff, min_iou=min_iou, **kw)
     rep["scene"] = str(scene)
     if report_dir is not None:
         write_report(rep, report_dir, force)

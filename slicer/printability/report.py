@@ -190,7 +190,8 @@ def _listed(items: list[str], n: int, what: str) -> list[str]:
     return items[:n] + [f"         ... and {len(items) - n} more {what} (all of them in --json)"]
 
 
-def check_stack(stack: LayerStack, skel=None, options: CheckOptions | None = None, on_layer=None) -> CheckReport:
+def check_stack(stack: LayerStack, skel=None, options: CheckOptions | None = None, on_layer=None,
+                blend: str = "sum") -> CheckReport:
     """Check a layer stack (one pass) and, with the scene, its struts.
 
     Parameters
@@ -201,6 +202,8 @@ def check_stack(stack: LayerStack, skel=None, options: CheckOptions | None = Non
     options : CheckOptions, optional
     on_layer : callable, optional
         Called as ``on_layer(k, image)`` with every layer, in order.
+    blend : {"sum", "union"}
+        The field the scene was sliced with (the thin-strut widths are measured on it).
 
     Returns
     -------
@@ -227,7 +230,7 @@ def check_stack(stack: LayerStack, skel=None, options: CheckOptions | None = Non
     threshold = max(pitch, o.min_feature)
     thin = None
     if skel is not None:
-        thin = thin_segments(skel, threshold, stack.offset, stack.layer_of)
+        thin = thin_segments(skel, threshold, stack.offset, stack.layer_of, blend)
     info = {"source": stack.source, "frame": stack.frame, "grid": {**g.to_dict(), "layers": n},
             "window": list(stack.window), "full_shape": list(stack.full_shape),
             "printer": stack.printer.name if stack.printer is not None else None,

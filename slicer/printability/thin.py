@@ -10,8 +10,8 @@ opposite directions (6 diameters), and the segment's width the smallest
 over its points. A point of the axis that is outside the solid has width 0
 (the strut is broken there).
 
-Since the field is a sum of non-negative terms, blending only widens a
-strut: a segment whose own radius is well above the threshold and that is
+Since the field is a sum (or, with ``blend="union"``, the maximum) of
+non-negative terms, blending only widens a strut: a segment whose own radius is well above the threshold and that is
 long enough for its middle to be a full cylinder (``2 tau_min >= 1.5 x
 threshold`` and ``L >= 4 tau_max``) is not measured. Widths are also
 compared with ``2 tau`` (the radius-based width, reported beside).
@@ -70,7 +70,7 @@ class ThinSegment:
                 "layer": self.layer}
 
 
-def printed_widths(skel: Skeleton, segments: np.ndarray | None = None) -> np.ndarray:
+def printed_widths(skel: Skeleton, segments: np.ndarray | None = None, blend: str = "sum") -> np.ndarray:
     """Printed width of segments from the exact field (see the module docstring).
 
     Parameters
@@ -78,6 +78,8 @@ def printed_widths(skel: Skeleton, segments: np.ndarray | None = None) -> np.nda
     skel : Skeleton
     segments : (s,) int64, optional
         Which segments (default: all).
+    blend : {"sum", "union"}
+        The field the solid is (:mod:`slicer.blend`).
 
     Returns
     -------
@@ -102,7 +104,7 @@ def printed_widths(skel: Skeleton, segments: np.ndarray | None = None) -> np.nda
         if not use.any():
             continue
         centre = a[use] + t * axis[use]
-        w = _widths_at(skel, centre, dirs[use], tau[use])
+        w = _widths_at(skel, centre, dirs[use], tau[use], blend)
         out[use] = np.minimum(out[use], w)
     return out
 
@@ -115,22 +117,23 @@ def _frame(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(u, e1)
 
 
-def _field(skel: Skeleton, pts: np.ndarray) -> np.ndarray:
+def _field(skel: Skeleton, pts: np.ndarray, blend: str = "sum") -> np.ndarray:
     flat = pts.reshape(-1, 3)
     out = np.empty(flat.shape[0])
     for s in range(0, flat.shape[0], BATCH):
-        out[s:s + BATCH] = evaluate(skel, flat[s:s + BATCH])[0]
+        out[s:s + BATCH] = evaluate(skel, flat[s:s + BATCH], blend=blend)[0]
     return out.reshape(pts.shape[:-1])
 
 
-def _widths_at(skel: Skeleton, centre: np.ndarray, dirs: np.ndarray, tau: np.ndarray) -> np.ndarray:
+def _widths_at(skel: Skeleton, centre: np.ndarray, dirs: np.ndarray, tau: np.ndarray,
+               blend: str = "sum") -> np.ndarray:
     """Smallest diameter of the solid's section through ``centre`` (perpendicular to the axis)."""
     n = centre.shape[0]
-    inside = _field(skel, centre) >= 1.0
+    inside = _field(skel, centre, blend) >= 1.0
     steps = np.arange(1, int(REACH / STEP) + 1) * STEP                 # (M,), in radii
     s = steps[None, None, :] * tau[:, None, None]                      # (n, D, M) mm
     pts = centre[:, None, None, :] + s[..., None] * dirs[:, :, None, :]
-    f = _field(skel, pts)
+    f = _field(skel, pts, blend)
     out_mask = f < 1.0
     first = np.where(out_mask.any(axis=2), np.argmax(out_mask, axis=2), -1)   # first step outside
     lo = np.where(first > 0, np.take_along_axis(s, np.maximum(first - 1, 0)[..., None], 2)[..., 0], 0.0)
@@ -141,7 +144,7 @@ def _widths_at(skel: Skeleton, centre: np.ndarray, dirs: np.ndarray, tau: np.nda
         if not found.any():
             break
         fm = np.ones_like(mid)
-        fm[found] = _field(skel, centre[np.nonzero(found)[0]] + mid[found][:, None] * dirs[found])
+        fm[found] = _field(skel, centre[np.nonzero(found)[0]] + mid[found][:, None] * dirs[found], blend)
         ins = fm >= 1.0
         lo = np.where(found & ins, mid, lo)
         hi = np.where(found & ~ins, mid, hi)
@@ -153,7 +156,8 @@ def _widths_at(skel: Skeleton, centre: np.ndarray, dirs: np.ndarray, tau: np.nda
     return width
 
 
-def thin_segments(skel: Skeleton, threshold: float, offset=(0.0, 0.0, 0.0), layer_of=None) -> list[ThinSegment]:
+def thin_segments(skel: Skeleton, threshold: float, offset=(0.0, 0.0, 0.0), layer_of=None,
+                  blend: str = "sum") -> list[ThinSegment]:
     """Segments whose printed width is below ``threshold`` mm.
 
     Parameters
@@ -165,6 +169,8 @@ def thin_segments(skel: Skeleton, threshold: float, offset=(0.0, 0.0, 0.0), laye
         Added to the reported positions (scene to plate coordinates).
     layer_of : callable, optional
         Height (stack mm) to layer index.
+    blend : {"sum", "union"}
+        The field the solid is (:mod:`slicer.blend`).
 
     Returns
     -------
@@ -178,7 +184,7 @@ def thin_segments(skel: Skeleton, threshold: float, offset=(0.0, 0.0, 0.0), laye
     length = np.linalg.norm(b - a, axis=1)
     safe = (2.0 * r.min(axis=1) >= 1.5 * threshold) & (length >= 4.0 * r.max(axis=1))
     cand = np.nonzero(~safe)[0]
-    widths = printed_widths(skel, cand)
+    widths = printed_widths(skel, cand, blend)
     off = np.asarray(offset, dtype=np.float64)
     out = []
     for i, w in zip(cand, widths):
