@@ -163,6 +163,13 @@ def test_hand_written_package_defaults(tmp_path):
     ('<b:beam v1="2" v2="2"/>', None, "beam 0: v1 = v2 = 2"),
     ('<b:beam v1="0" v2="1"/>', 'radius="-1" minlength="0.0001"', "beamlattice: radius = -1 is not a valid radius"),
 ])
+def test_bad_beam_data_named(tmp_path, beams, attrs, needle):
+    kw = {"lattice_attrs": attrs} if attrs else {}
+    path = hand_3mf(tmp_path / "bad.3mf", beams, **kw)
+    with pytest.raises(SceneError) as e:
+        load_scene(path)
+    msg = str(e.value)
+    assert msg.startswith(f"{path}: /3D/3dmodel.model, object 1 'strut'") and needle in msg, msg
 
 
 @pytest.mark.parametrize("beams,needle", [
@@ -178,13 +185,6 @@ def test_numbers_float64_cannot_resolve_are_named(tmp_path, beams, needle):
     with pytest.raises(SceneError) as e:
         load_scene(path)
     assert str(e.value).startswith(f"{path}: ") and needle in str(e.value), str(e.value)
-def test_bad_beam_data_named(tmp_path, beams, attrs, needle):
-    kw = {"lattice_attrs": attrs} if attrs else {}
-    path = hand_3mf(tmp_path / "bad.3mf", beams, **kw)
-    with pytest.raises(SceneError) as e:
-        load_scene(path)
-    msg = str(e.value)
-    assert msg.startswith(f"{path}: /3D/3dmodel.model, object 1 'strut'") and needle in msg, msg
 
 
 def test_no_beam_lattice(tmp_path):
