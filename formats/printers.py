@@ -262,6 +262,9 @@ class PrintSettings:
         XY supersampling factor (1: none).
     aa_z : bool
         Sub-layer z coverage.
+    aa_exact : bool
+        ``--aa exact``: coverage is the exact area of the section in each
+        pixel (``aa`` is then 1).
     gamma : float
         Coverage-to-grey exponent (see :mod:`slicer.antialias`).
     at : (2,) float or None, plate mm
@@ -277,10 +280,11 @@ class PrintSettings:
     aa_z: bool = False
     gamma: float = 1.0
     at: tuple[float, float] | None = None
+    aa_exact: bool = False
 
     @property
     def antialiased(self) -> bool:
-        return self.aa > 1 or self.aa_z
+        return self.aa > 1 or self.aa_z or self.aa_exact
 
     def exposure_of(self, k: int) -> float:
         """Exposure of layer k, s (bottom layers first)."""
@@ -289,7 +293,7 @@ class PrintSettings:
     def to_dict(self) -> dict:
         d = {"layer_height": self.layer_height, "exposure": self.exposure,
              "bottom_exposure": self.bottom_exposure, "bottom_layers": self.bottom_layers,
-             "aa": self.aa, "aa_z": self.aa_z, "gamma": self.gamma}
+             "aa": "exact" if self.aa_exact else self.aa, "aa_z": self.aa_z, "gamma": self.gamma}
         if self.printer is not None:
             d["printer"] = self.printer.name
         if self.at is not None:

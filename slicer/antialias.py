@@ -25,6 +25,23 @@ with ``s(c) = c^g / (c^g + (1 - c)^g)``, ``g = --gamma``:
   ``gamma_correction = 1``); ``g > 1`` sharpens edges toward a threshold,
   ``g < 1`` softens them.
 
+Exact area
+----------
+``--aa exact`` traces at the output pitch and makes each pixel's coverage
+the exact area of the layer's section inside the pixel square, divided by
+the pixel's area: the guaranteed contours of the layer
+(:func:`slicer.contours.iter_contours`, every feature wider than
+``--contour-tol``, vertices on the surface to it) are accumulated edge by
+edge into the pixels they cross (:mod:`slicer._kernels.coverage`, exact up
+to float64 rounding for the polygons). The only error is the contours' own:
+at most ``tol`` times the boundary length inside the pixel, over its area.
+With ``--aa-z`` the coverage is the mean of the exact areas on
+``Z_PLANES`` planes at the midpoints of equal sub-layers of the voxel
+(the midpoint rule in z): where the area varies with Lipschitz constant
+``L`` (fraction per mm) over the voxel the error is at most ``L h / (4 S)``
+(``S = Z_PLANES``); where a horizontal face of the solid lies inside the
+voxel the area jumps and the error can reach ``1 / (2 S)`` of the pixel.
+
 Without anti-aliasing the layers stay exactly 0/255.
 """
 from __future__ import annotations
@@ -35,9 +52,18 @@ import numpy as np
 
 from formats.printers import place
 
+from ._kernels.coverage import ring_coverage
 from .checks import integer, positive_number
-from .errors import GridError
+from .contours import check_resolvable, grid_box, iter_contours, plane_contours
+from .errors import GridError, OptionError, OutputError
 from .grid import SliceGrid
+from .part_slicing import PartResult, PartStreamedResult
+
+#: sub-layer planes per voxel of ``--aa exact --aa-z`` (midpoint rule in z)
+Z_PLANES = 4
+
+#: the ``--aa`` value of exact-area anti-aliasing
+EXACT = "exact"
 
 
 def grey_from_coverage(cov: np.ndarray, gamma: float = 1.0) -> np.ndarray:
@@ -121,8 +147,76 @@ def iter_sub_coverage(result, aa_z: bool) -> Iterator[np.ndarray]:
 
 
 def check_aa(aa, gamma) -> tuple[int, float]:
-    """Validate ``--aa`` (integer 1..16) and ``--gamma`` (> 0)."""
+    """Validate ``--aa`` (integer 1..16, or ``exact``: traced at the output
+    pitch, 1) and ``--gamma`` (> 0)."""
+    if is_exact(aa):
+        return 1, positive_number(gamma, "--gamma")
+    if isinstance(aa, str):
+        try:
+            aa = int(aa.strip())
+        except ValueError:
+            raise OptionError(f"--aa must be an integer from 1 to 16 or 'exact', got {aa!r}") from None
     return integer(aa, "--aa", lo=1, hi=16), positive_number(gamma, "--gamma")
+
+
+def is_exact(aa) -> bool:
+    """Whether an ``--aa`` value asks for exact-area coverage."""
+    return isinstance(aa, str) and aa.strip().lower() == EXACT
+
+
+def polygon_coverage(polys, grid: SliceGrid) -> np.ndarray:
+    """Exact covered fraction of each pixel of ``grid`` by polygons of the layer plane.
+
+    Parameters
+    ----------
+    polys : shapely.MultiPolygon, mm
+        Valid; outer rings and holes of opposite orientations.
+    grid : SliceGrid
+
+    Returns
+    -------
+    (grid.height, grid.width) float64 in [0, 1]
+    """
+    H, W = grid.height, grid.width
+    rings = [np.asarray(r.coords)[:-1, :2] for p in polys.geoms for r in (p.exterior, *p.interiors)]
+    rings = [r for r in rings if r.shape[0] >= 3]
+    if not rings:
+        return np.zeros((H, W))
+    (x0, y0), (px, py) = grid.origin[:2], grid.pixel_size
+    xy = np.concatenate(rings)
+    u = (xy[:, 0] - (x0 - 0.5 * px)) / px
+    v = ((y0 + 0.5 * py) - xy[:, 1]) / py
+    starts = np.concatenate([[0], np.cumsum([r.shape[0] for r in rings])]).astype(np.int64)
+    return np.clip(np.abs(ring_coverage(u, v, starts, W, H)), 0.0, 1.0)
+
+
+def iter_exact_coverage(skel, result, aa_z: bool, tol: float) -> Iterator[np.ndarray]:
+    """Per layer of ``result``, the exact-area coverage of each pixel
+    (module docstring), (H, W) float64.
+
+    Raises
+    ------
+    OptionError
+        ``aa_z`` on a part (a lattice with meshes): its contours exist on the
+        layer planes only.
+    """
+    g = result.grid
+    if not aa_z:
+        for _, _, polys in iter_contours(skel, result, tol):
+            yield polygon_coverage(polys, g)
+        return
+    if isinstance(result, (PartResult, PartStreamedResult)):
+        raise OptionError("--aa exact with --aa-z is not available for lattices with meshes: use --aa N --aa-z")
+    tol = check_resolvable(skel, tol)
+    box = grid_box(g)
+    h = g.layer_height
+    for k in range(g.layers):
+        zk = g.origin[2] + k * h
+        cov = np.zeros((g.height, g.width))
+        for q in range(Z_PLANES):
+            z = zk - 0.5 * h + (q + 0.5) * h / Z_PLANES
+            cov += polygon_coverage(plane_contours(skel, z, tol, box), g)
+        yield cov / Z_PLANES
 
 
 def paste(canvas: np.ndarray, win: np.ndarray, top: int, left: int) -> None:
@@ -135,7 +229,17 @@ def paste(canvas: np.ndarray, win: np.ndarray, top: int, left: int) -> None:
         canvas[r0:r1, c0:c1] = win[r0 - top:r1 - top, c0 - left:c1 - left]
 
 
-def output_layers(result, settings) -> tuple[SliceGrid, Iterator[np.ndarray]]:
+def _coverage(result, settings, skel, tol) -> Iterator[np.ndarray]:
+    if getattr(settings, "aa_exact", False):
+        if skel is None:
+            raise OutputError("--aa exact needs the skeleton (its contours give the exact areas)")
+        tol = check_resolvable(skel, tol)
+        yield from iter_exact_coverage(skel, result, settings.aa_z, tol)
+    else:
+        yield from iter_sub_coverage(result, settings.aa_z)
+
+
+def output_layers(result, settings, skel=None, tol: float = 1e-3) -> tuple[SliceGrid, Iterator[np.ndarray]]:
     """The output grid and the layer images of a traced result.
 
     Parameters
@@ -144,6 +248,10 @@ def output_layers(result, settings) -> tuple[SliceGrid, Iterator[np.ndarray]]:
         Traced at the output pitch / ``settings.aa``.
     settings : formats.printers.PrintSettings
         Printer (None: the traced grid itself), anti-aliasing, gamma, ``at``.
+    skel : Skeleton, optional
+        Needed by ``--aa exact`` (``settings.aa_exact``).
+    tol : float, mm
+        Contour tolerance of ``--aa exact``.
 
     Returns
     -------
@@ -157,15 +265,15 @@ def output_layers(result, settings) -> tuple[SliceGrid, Iterator[np.ndarray]]:
         if not aa:
             return result.grid, result.iter_layers()
         layers = (grey_from_coverage(box_filter(c, n)[0], settings.gamma)
-                  for c in iter_sub_coverage(result, settings.aa_z))
+                  for c in _coverage(result, settings, skel, tol))
         return output_grid(result.grid, n), layers
     pl = place(result, settings.printer, n, settings.at)
-    return pl.grid, _plate_layers(result, pl, settings)
+    return pl.grid, _plate_layers(result, pl, settings, skel, tol)
 
 
-def _plate_layers(result, pl, settings) -> Iterator[np.ndarray]:
+def _plate_layers(result, pl, settings, skel=None, tol: float = 1e-3) -> Iterator[np.ndarray]:
     shape = pl.printer.plate_shape
-    src = iter_sub_coverage(result, settings.aa_z) if settings.antialiased else result.iter_layers()
+    src = _coverage(result, settings, skel, tol) if settings.antialiased else result.iter_layers()
     for k, img in enumerate(src):
         if k < pl.k_first:
             continue
@@ -180,5 +288,5 @@ def _plate_layers(result, pl, settings) -> Iterator[np.ndarray]:
         yield canvas
 
 
-__all__ = ["grey_from_coverage", "box_filter", "output_grid", "iter_sub_coverage", "check_aa", "paste",
+__all__ = ["polygon_coverage", "iter_exact_coverage", "is_exact", "Z_PLANES", "grey_from_coverage", "box_filter", "output_grid", "iter_sub_coverage", "check_aa", "paste",
            "output_layers"]

@@ -19,7 +19,7 @@ from ._version import __version__
 from .antialias import output_layers
 from .atomic import check_destination
 from .checks import resolvable, scene_reach
-from .contours import write_contours
+from .contours import check_resolvable, write_contours
 from .errors import GridError, OutputError
 from .executors import executor_info as describe_executor
 from .field import evaluate
@@ -99,6 +99,10 @@ def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: boo
         resolvable(out_opts.contour_tol, "--contour-tol", scene_reach(skel))
     if isinstance(skel, Part) and not skel.has_meshes:     # a lattice alone: the lattice's own path
         skel = skel.skeleton
+    # a contour tolerance float64 cannot resolve at the scene's coordinates: refused before any work
+    lattice = skel.skeleton if isinstance(skel, Part) else skel
+    if lattice is not None:                                # (a part may hold meshes only)
+        check_resolvable(lattice, out_opts.contour_tol)
     traced = _trace(skel, job, resolved, progress=progress, dry_run=dry_run, report=report,
                     executor_info=executor_info)
     if dry_run:

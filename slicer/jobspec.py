@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from formats import format_for, writer_for
 from formats.printers import PRINTERS, Printer, PrintSettings, get_printer
 
-from .antialias import check_aa
+from .antialias import check_aa, is_exact
 from .blend import require_sum, require_traceable
 from .checks import coordinates, fmt_num, integer, magnitude
 from .errors import OptionError
@@ -278,7 +278,8 @@ class SliceJob:
             raise OptionError("--at needs --printer (it places the model on a printer's plate)")
         px, py, h = _pitch(g, prn)
         settings = None
-        if prn is not None or aa > 1 or p.aa_z or any(v is not None for v in
+        exact = is_exact(p.aa)
+        if prn is not None or aa > 1 or p.aa_z or exact or any(v is not None for v in
                                                       (p.exposure, p.bottom_exposure, p.bottom_layers)):
             settings = PrintSettings(
                 prn, h,
@@ -286,12 +287,12 @@ class SliceJob:
                 bottom_exposure=_default(p.bottom_exposure, "--bottom-exposure", prn.bottom_exposure if prn else 25.0),
                 bottom_layers=(integer(p.bottom_layers, "--bottom-layers", lo=0) if p.bottom_layers is not None
                                else (prn.bottom_layers if prn else 10)),
-                aa=aa, aa_z=bool(p.aa_z), gamma=gamma,
+                aa=aa, aa_z=bool(p.aa_z), gamma=gamma, aa_exact=exact,
                 at=None if p.at is None else _plate_point(p.at, prn))
             check = getattr(cls, "check_settings", None)
             if check is not None:
                 check(settings)
-        return ResolvedJob(name, settings, (px / aa, py / aa), h, bool(p.aa_z))
+        return ResolvedJob(name, settings, (px / aa, py / aa), h, bool(p.aa_z) and not exact)
 
     def trace_options(self, resolved: ResolvedJob) -> TraceOptions:
         """The tracer settings of this job (spans on with ``aa_z``)."""

@@ -65,7 +65,7 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
         raise OutputError(f"{out}: the {writer_cls.name} format writes contours: pass the skeleton (skel=...)")
     placement = plate_placement(result, settings)
     if settings is not None and not contours:
-        grid, layers = output_layers(result, settings)        # places on the plate, anti-aliases
+        grid, layers = output_layers(result, settings, skel, contour_tol)   # places on the plate, anti-aliases
         writer = writer_cls(out, grid, meta, force=force, settings=settings)
     elif placement is not None:                                # contours on the printer's plate
         grid = placement.grid

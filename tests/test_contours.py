@@ -74,6 +74,18 @@ def test_square_frame_has_a_clockwise_hole():
         assert max(_surface_distance_3d(s, polygon_rings(mp), z)) <= TOL
 
 
+def _assert_raster_within_tol(s, raster, mask, g, z, tol=TOL):
+    """The contours' raster is the tracer's except at pixel centres within
+    ``tol`` of the surface (a vertex may lie on either side of such a centre)."""
+    j, i = np.nonzero(raster != mask)
+    if j.size:
+        p = np.column_stack([g.origin[0] + i * g.pixel_size[0], g.origin[1] - j * g.pixel_size[1],
+                             np.full(j.size, z)])
+        f, grad = evaluate(s, p, True)
+        assert (np.abs(f - 1.0) / np.hypot(grad[:, 0], grad[:, 1]) <= tol).all()
+    assert j.size <= max(4, mask.sum() // 100)
+
+
 def test_contours_reproduce_the_raster_and_vertices_lie_on_the_surface():
     from sample_lattices import load_sample
 
@@ -91,7 +103,7 @@ def test_contours_reproduce_the_raster_and_vertices_lie_on_the_surface():
         rings = polygon_rings(mp)
         g = r.grid
         raster = rasterize_rings(rings, g.origin[:2], g.pixel_size, g.height, g.width)
-        assert np.array_equal(raster, layer_mask(r, k))
+        _assert_raster_within_tol(s, raster, layer_mask(r, k), g, z)
         if rings:
             assert _surface_distance_3d(s, rings, z).max() <= TOL
             for poly in mp.geoms:
@@ -169,8 +181,8 @@ def test_random_skeletons_give_valid_wound_surface_contours(seed, px):
         mp = layer_contours(s, r, int(k))
         assert mp.is_valid
         rings = polygon_rings(mp)
-        assert np.array_equal(rasterize_rings(rings, g.origin[:2], g.pixel_size, g.height, g.width),
-                              layer_mask(r, int(k)))
+        _assert_raster_within_tol(s, rasterize_rings(rings, g.origin[:2], g.pixel_size, g.height, g.width),
+                                  layer_mask(r, int(k)), g, z)
         if rings:
             xy = np.concatenate(rings)
             f, gr = evaluate(s, np.column_stack([xy, np.full(len(xy), z)]), gradient=True)

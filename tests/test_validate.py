@@ -73,9 +73,11 @@ def test_metrics_catch_a_wrong_reference():
     k = int(np.argmax([m.sum() for m in r.iter_layers(1)]))
     z = r.grid.origin[2] + k * r.grid.layer_height
     ours = layer_contours(FRAME, r, k)
-    good = compare_layer(FRAME, ours, ours, z, layer_mask(r, k), r.grid.origin[:2], r.grid.pixel_size)
-    assert good["iou"] == 1.0 and good["hausdorff"] < 1e-12 and good["pixel_mismatch"] == 0
-    assert good["contour_raster_mismatch"] == 0
+    good = compare_layer(FRAME, ours, ours, z, layer_mask(r, k), r.grid.origin[:2], r.grid.pixel_size, tol=1e-3)
+    assert good["iou"] == 1.0 and good["hausdorff"] < 1e-12
+    # rows of pixel centres lie exactly on the horizontal struts' surface (|y| = tau): either side is right
+    assert good["pixel_mismatch"] == good["contour_raster_mismatch"]
+    assert good["contour_raster_unexplained"] == 0
     bad_ref = shapely.affinity.translate(ours, 0.05, 0.0)
     bad = compare_layer(FRAME, ours, bad_ref, z, layer_mask(r, k), r.grid.origin[:2], r.grid.pixel_size,
                         ref_bound=1e-3)

@@ -5,6 +5,9 @@ sample model into layer contours with
 
 * ``interval``, ``sampling``, ``segment``: the tracer's exact raster, then
   :mod:`slicer.contours` (root-refined vertices, chords refined to ``tol``);
+* ``guaranteed``: no raster at all: :func:`slicer.contours.plane_contours`
+  per layer (the adaptive quadtree settled by the field's bounds, every
+  feature wider than ``tol``, vertices and chords to ``tol``);
 * ``dense``: the baseline of PySLM's implicit example: the field on the pixel
   grid of every layer (:func:`slicer.field.evaluate`), marching squares with
   linear interpolation, no root refinement;
@@ -37,7 +40,16 @@ from pathlib import Path
 
 import numpy as np
 
+from sample_lattices import load_sample
+from slicer._kernels.launch import numba_threads
+from slicer.contours import grid_box, layer_mask, mask_rings, plane_contours
+from slicer.field import evaluate
+from slicer.grid import make_grid
+from slicer.slicing import slice_skeleton, trace
+
 from . import machine
+from .bench import _warmup
+from .metrics import hausdorff, polygon_rings
 
 #: reference: pixels across the support box, contour tolerance (mm)
 REF_PIXELS = 1024
@@ -55,6 +67,7 @@ def default_sweep(quick: bool = False) -> list[dict]:
     for m in ("interval", "sampling", "segment"):
         cfgs += [{"method": m, **BASE, "pixels": p} for p in px]
     cfgs += [{"method": "interval", **BASE, "tol": t} for t in ((1e-2,) if quick else (1e-2, 1e-4))]
+    cfgs += [{"method": "guaranteed", **BASE, "tol": t} for t in ((1e-2, 1e-3) if quick else (1e-2, 1e-3, 1e-4))]
     cfgs += [{"method": "interval", **BASE, "bucket": b} for b in ((16,) if quick else (16, 0))]
     cfgs += [{"method": "interval", **BASE, "layers": n} for n in ((64,) if quick else (64, 256))]
     dpx = (64, 128, 256) if quick else (64, 128, 256, 512)
@@ -83,9 +96,6 @@ class Reference:
         self.seconds = 0.0
 
     def rings(self, z: float) -> list[np.ndarray]:
-        from slicer.contours import layer_mask, mask_rings
-        from slicer.slicing import slice_skeleton
-
         z = float(z)
         if z not in self.cache:
             t0 = time.perf_counter()
@@ -111,11 +121,6 @@ def run_config(skel, cfg: dict, keep: set[int]) -> tuple[float, dict, dict]:
     info : dict
         Grid and counters.
     """
-    from slicer.contours import mask_rings
-    from slicer.field import evaluate
-    from slicer.grid import make_grid
-    from slicer.slicing import trace
-
     (x0, y0, x1, y1), (z0, z1) = square_box(skel)
     px = (x1 - x0) / cfg["pixels"]
     h = (z1 - z0) / cfg["layers"]
@@ -123,7 +128,13 @@ def run_config(skel, cfg: dict, keep: set[int]) -> tuple[float, dict, dict]:
     out = {}
     st = {}
     t0 = time.perf_counter()
-    if cfg["method"] == "dense":
+    if cfg["method"] == "guaranteed":
+        box = grid_box(grid)
+        for k, z in enumerate(grid.centres_z()):
+            mp = plane_contours(skel, z, cfg["tol"], box, st)
+            if k in keep:
+                out[k] = polygon_rings(mp)
+    elif cfg["method"] == "dense":
         X, Y = np.meshgrid(grid.centres_x(), grid.centres_y())
         xy = np.column_stack([X.ravel(), Y.ravel()])
         for k, z in enumerate(grid.centres_z()):
@@ -146,8 +157,6 @@ def run_config(skel, cfg: dict, keep: set[int]) -> tuple[float, dict, dict]:
 
 def measure(skel, cfg: dict, ref: Reference, repeat: int = 1) -> dict:
     """Time and error of one configuration (best time of ``repeat`` runs)."""
-    from .metrics import hausdorff
-
     (_, _, _, _), (z0, z1) = square_box(skel)
     h = (z1 - z0) / cfg["layers"]
     targets = [z0 + f * (z1 - z0) for f in TARGETS]
@@ -182,11 +191,6 @@ def sweep(model: str = "jellyfish", configs=None, quick: bool = False, repeat: i
           progress=None, ref_pixels: int = REF_PIXELS, ref_tol: float = REF_TOL) -> dict:
     """Run the sweep; returns a JSON-ready dict (``ref_pixels``, ``ref_tol``: the reference's
     resolution and contour tolerance, mm)."""
-    from sample_lattices import load_sample
-    from slicer._kernels.launch import numba_threads
-
-    from .bench import _warmup
-
     skel = load_sample(model)
     compile_s = _warmup()
     configs = configs or default_sweep(quick)
@@ -209,6 +213,8 @@ def sweep(model: str = "jellyfish", configs=None, quick: bool = False, repeat: i
 def label(row: dict) -> str:
     if row["method"] == "dense":
         return f"dense {row['pixels']}px {row['layers']}L"
+    if row["method"] == "guaranteed":
+        return f"guaranteed {row['layers']}L tol {row['tol']:g}"
     return f"{row['method']} {row['pixels']}px {row['layers']}L tol {row['tol']:g} B{row['bucket']}"
 
 
@@ -234,7 +240,8 @@ def plot(result: dict, path) -> Path:
     import matplotlib.pyplot as plt
 
     rows = result["rows"]
-    style = {"interval": ("o", "C0"), "sampling": ("s", "C1"), "segment": ("^", "C2"), "dense": ("D", "C3")}
+    style = {"interval": ("o", "C0"), "sampling": ("s", "C1"), "segment": ("^", "C2"), "dense": ("D", "C3"),
+             "guaranteed": ("*", "C4")}
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
     for ax, key, title in ((axes[0], "error_layer", "contour error in the layer plane"),
                            (axes[1], "error_solid", "error of the layer stack (staircase included)")):

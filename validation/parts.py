@@ -30,13 +30,14 @@ import numpy as np
 import shapely
 
 from slicer.checks import resolvable, scene_reach, scene_step
-from slicer.contours import layer_mask, part_layer_contours, project_to_contour, rings_to_multipolygon
+from slicer.contours import layer_mask, part_layer_contours, rings_to_multipolygon
 from slicer.errors import GridError
 from slicer.field import evaluate
 from slicer.mesh_slicing import Sections
 from slicer.part_slicing import slice_part
 from slicer.parts import ROLES
 
+from .independent import project
 from .metrics import _edge_points, hausdorff, polygon_rings, rasterize_rings
 from .reference_mesh import reference_band
 from .validate import assemble_report, pick_layers
@@ -96,7 +97,7 @@ def _lattice_bound(part, lat_rings: list, polys, z: float, tol: float) -> float:
     pts = pts[shapely.distance(polys.boundary, shapely.points(pts)) < 1e-6]
     if not pts.shape[0]:
         return 0.0
-    roots, ok, first, _ = project_to_contour(part.skeleton, pts, z, tol)
+    roots, ok, first = project(part.skeleton, pts, z, tol)
     d = np.where(ok, np.hypot(*(roots - pts).T) + tol, first)
     d = d[np.isfinite(d)]
     return float(d.max()) if d.size else 0.0
@@ -173,11 +174,12 @@ def validate_part(part, *, pixel_size: float | None = None, pixels: int = 512, p
         unexplained = int((~(_surface_distance(part, xy, z, mesh_secs) <= bound + SLACK)).sum())
         verts = np.concatenate(our_rings) if our_rings else np.zeros((0, 2))
         vmax = float(_surface_distance(part, verts, z, mesh_secs).max()) if verts.shape[0] else 0.0
+        off = _off_boundary(ours, own_raster != mask, g)        # mismatches not explained by the boundary
         row = {"k": int(k), "z": float(z), "iou": float(ours.intersection(ref).area / union) if union > 0 else 1.0,
                "xor_area": float(ours.symmetric_difference(ref).area), "area": float(ours.area),
                "ref_area": float(ref.area), "hausdorff": haus, "hausdorff_px": haus / min(px, py),
                "pixel_mismatch": int(mism.sum()), "pixel_mismatch_unexplained": unexplained,
-               "contour_raster_mismatch": _off_boundary(ours, own_raster != mask, g),
+               "contour_raster_mismatch": off, "contour_raster_unexplained": off,
                "vertex_max_3d": vmax, "vertex_max_plane": vmax, "vertices": int(verts.shape[0]),
                "valid": bool(ours.is_valid and shapely.is_valid(ref)), "mesh_bound": bound,
                "mesh_first_order": bound, "mesh_unbracketed": 0,

@@ -6,9 +6,10 @@ The field is sampled on a cubic grid with the compiled, bucketed evaluator
 the six Freudenthal (Kuhn) tetrahedra that share its main diagonal, so
 neighbouring cubes agree on their faces and marching tetrahedra gives a closed,
 oriented, watertight mesh. Every mesh vertex sits on a grid edge between an
-inside and an outside sample and is put on the surface by the same bracketed
-root solve as the contours (:func:`slicer.contours.solve_crossings`), so the
-mesh's error is its chordal error only: flat triangles of edge up to
+inside and an outside sample and is put on the surface by plain bisection
+(:func:`validation.independent.bisect`: nothing of the contours' code is
+shared; only the point field evaluation is), so the mesh's error is its
+chordal error only: flat triangles of edge up to
 ``edge * sqrt(3)`` across a curved surface. Grid points on the faces of the
 meshed box count as outside, so a box that cuts the solid closes it with caps.
 
@@ -33,11 +34,12 @@ from itertools import permutations
 
 import numpy as np
 
-from slicer.contours import rings_to_multipolygon, solve_crossings
 from slicer.checks import positive_number
 from slicer.errors import GridError
 from slicer.field import evaluate
 from slicer.skeleton import Skeleton
+
+from .independent import assemble, bisect, chain
 
 # cube corner c = dx + 2 dy + 4 dz
 _CORNER = np.array([[(c >> 0) & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)])
@@ -248,7 +250,7 @@ def march_box(skel: Skeleton, lo, edge: float, dims, tol: float = 1e-5, open_z: 
     verts = 0.5 * (a + b)
     free = ~on_face
     if free.any():
-        _, tt, _, ne = solve_crossings(skel, a[free], b[free], tol, f_in[free], f_out[free])
+        _, tt, _, ne = bisect(skel, a[free], b[free], tol, f_in[free], f_out[free])
         evals += ne
         tt = np.clip(tt, 1e-6, 1 - 1e-6)
         verts[free] = a[free] + tt[:, None] * (b[free] - a[free])
@@ -370,8 +372,6 @@ def cap_band(verts: np.ndarray, tris: np.ndarray, z_planes) -> np.ndarray:
     """
     import manifold3d
 
-    from slicer._kernels.contours import chain_rings
-
     if tris.shape[0] == 0:
         return tris
     e = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
@@ -390,10 +390,10 @@ def cap_band(verts: np.ndarray, tris: np.ndarray, z_planes) -> np.ndarray:
         local = np.searchsorted(ids, be)
         nxt = np.full(ids.size, -1, np.int64)
         nxt[local[:, 1]] = local[:, 0]              # caps run against the band's edges
-        order, starts, status = chain_rings(nxt)
-        if status != 0:
-            raise RuntimeError("reference mesh: the band's boundary is not a set of closed loops")
-        loops = [ids[order[starts[q]:starts[q + 1]]] for q in range(starts.size - 1)]
+        try:
+            loops = [ids[np.asarray(c)] for c in chain(nxt)]
+        except RuntimeError:
+            raise RuntimeError("reference mesh: the band's boundary is not a set of closed loops") from None
         # the top cap (flip +1) is seen from above, the bottom cap from below
         polys = [np.column_stack([verts[lp, 0], flip * verts[lp, 1]]) for lp in loops]
         t = np.asarray(manifold3d.triangulate(polys), dtype=np.int64)
@@ -440,7 +440,7 @@ def reference_sections(skel: Skeleton, zs, edge: float, tol: float = 1e-5) -> li
         cs = band.slice(float(z))
         rings = [np.asarray(r, dtype=np.float64) for r in cs.to_polygons()]
         info.seconds = time.perf_counter() - t0
-        out.append(Section(float(z), rings_to_multipolygon(rings), info, rings))
+        out.append(Section(float(z), assemble(rings), info, rings))
     return out
 
 

@@ -29,12 +29,13 @@ import numpy as np
 import shapely
 
 from slicer.checks import resolvable, scene_reach, scene_step
-from slicer.contours import layer_contours, layer_mask, plane_distance, rings_to_multipolygon
+from slicer.contours import layer_contours, layer_mask, rings_to_multipolygon
 from slicer.errors import GridError
 from slicer.field import evaluate
 from slicer.skeleton import Skeleton
 from slicer.slicing import slice_skeleton, trace
 
+from .independent import plane_distance
 from .metrics import contour_error_bound, hausdorff, polygon_rings, rasterize_rings
 from .reference_mesh import Section, reference_band
 from .validate import assemble_report, default_pitch, pick_layers
@@ -147,6 +148,8 @@ def compare_union_layer(skel: Skeleton, res, k: int, ids: list[int], sec: Sectio
             "pixel_mismatch": int(mism.sum()),
             "pixel_mismatch_unexplained": unexplained_pixels(skel, ids, mism, g.origin[:2], g.pixel_size, z, bound),
             "contour_raster_mismatch": int((own != mask).sum()),
+            "contour_raster_unexplained": unexplained_pixels(skel, ids, own != mask, g.origin[:2], g.pixel_size, z,
+                                                             tol),
             "vertex_max_3d": union_vertex_distance(skel, our_rings, z), "vertex_max_plane": float("nan"),
             "vertices": int(sum(len(r) for r in our_rings)), "valid": bool(ours.is_valid),
             "mesh_bound": bound, "mesh_first_order": float("nan"), "mesh_unbracketed": 0,

@@ -130,7 +130,7 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
         t3 = time.perf_counter()
         bound = contour_error_bound(skel, polygon_rings(sec.polygons), z)
         row = compare_layer(skel, ours, sec.polygons, z, layer_mask(res, k), g.origin[:2], g.pixel_size,
-                            ref_bound=bound["bound"])
+                            ref_bound=bound["bound"], tol=tol)
         t_metrics += time.perf_counter() - t3
         row.update({"k": k, "mesh_bound": bound["bound"], "mesh_first_order": bound["first_order"],
                     "mesh_unbracketed": bound["unbracketed"], "mesh_error_3d": sec.info.error_3d,
@@ -158,7 +158,7 @@ def assemble_report(rows: list[dict], settings: dict, grid, timings: dict, tol: 
     checks = {
         "hausdorff_within_mesh_bound": all(r["hausdorff_margin"] >= -SLACK for r in rows),
         "vertices_on_surface": all(r["vertex_max_3d"] <= tol + SLACK for r in rows),
-        "contours_match_raster": all(r["contour_raster_mismatch"] == 0 and r["valid"] for r in rows),
+        "contours_match_raster": all(r["contour_raster_unexplained"] == 0 and r["valid"] for r in rows),
     }
     if max_hausdorff is not None:
         checks["max_hausdorff"] = all(r["hausdorff"] <= max_hausdorff for r in rows)
@@ -216,7 +216,6 @@ def overlay_image(mask: np.ndarray, ref_rings: list[np.ndarray], ref_raster: np.
 
 def write_report(report: dict, out, force: bool = False, images: int = 4) -> Path:
     """Write ``report.json`` and overlay PNGs of the worst layers to folder ``out``, atomically."""
-
 
     out = Path(out)
     check_destination(out, force)

@@ -75,8 +75,9 @@ print_options = _stack(
                       "the model is centred on the plate, bottom at Z = 0."),
     click.option("--at", type=float, nargs=2, default=None, metavar="X Y",
                  help="With --printer: centre of the model's footprint on the plate, mm."),
-    click.option("--aa", type=int, default=1, show_default=True,
-                 help="Anti-aliasing: N x N sub-pixel samples per pixel (1-16), grey = coverage."),
+    click.option("--aa", type=str, default="1", show_default=True, metavar="N|exact",
+                 help="Anti-aliasing: N x N sub-pixel samples per pixel (1-16), grey = coverage; exact: grey = "
+                      "the exact area of the section in the pixel, from the guaranteed contours."),
     click.option("--aa-z", is_flag=True, help="Anti-aliasing in z: exact sub-layer coverage of each voxel."),
     click.option("--gamma", type=float, default=1.0, show_default=True,
                  help="Grey = coverage^g / (coverage^g + (1 - coverage)^g); 50 % coverage is always 128."),

@@ -1,0 +1,201 @@
+"""Per-primitive bounds of the field's slope and curvature over a disc of a
+layer plane (docs/math.md §10).
+
+For a point ``p`` and one segment, ``f(p) = ∫ (1/τ) k(‖p − q‖/τ) dq`` over
+the arc length ``t`` (docs/math.md §1.1). The integrand's gradient in ``p``
+has norm ``|k'(s)| / τ²`` and its Hessian norm at most
+``max(|k''(s)|, |k'(s)/s|) / τ³`` (``s = ‖p − q‖/τ``), and both vanish
+unless ``‖p − q(t)‖ < στ(t)``. Over every ``p`` of the disc of centre ``c``
+and radius ``r`` the points of the axis that can act satisfy
+``‖c − q(t)‖ < στ(t) + r``: an interval ``[ta, tb]`` of arc length, the
+roots of a quadratic, clipped to ``[0, L]``. Hence, for all p in the disc,
+
+    ‖∇f(p)‖  <= K1 ∫_ta^tb dt/τ²  = K1 (tb − ta) / (τa τb)
+    ‖∇²f(p)‖ <= K2 ∫_ta^tb dt/τ³  = K2 (tb − ta)(τa + τb) / (2 τa² τb²)
+
+with ``K1 = max|k'|`` and ``K2 = max(max|k''|, max|k'(s)/s|)``. The roots
+are widened by a relative margin and the sums scaled up by ``1 + 1e-9``
+(no directed rounding in Numba: a margin far above the rounding error of
+the few operations involved).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._jit import kernel
+from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
+from .raysupport import kprime_max
+
+#: relative slack on every computed bound (rounding of a few dozen operations is ~1e-15)
+SLACK = 1e-9
+
+
+@kernel
+def _reach_interval(seg, i, cx, cy, cz, r, sigma):
+    """Arc-length interval of segment ``i`` whose support balls, grown by ``r``,
+    hold ``c``: ``‖c − q(t)‖ < στ(t) + r``, clipped to [0, L] (empty: tb <= ta)."""
+    wx = cx - seg[i, AX]
+    wy = cy - seg[i, AY]
+    wz = cz - seg[i, AZ]
+    L = seg[i, LEN]
+    wu = wx * seg[i, UX] + wy * seg[i, UY] + wz * seg[i, UZ]
+    ww = wx * wx + wy * wy + wz * wz
+    R0 = sigma * seg[i, TAU0] + r
+    Rd = sigma * seg[i, DELTA]
+    A = 1.0 - Rd * Rd
+    B = wu + R0 * Rd
+    C = ww - R0 * R0
+    if A <= SLACK:                  # support cone steeper than 45 degrees: take all of it
+        return 0.0, L
+    disc = B * B - A * C
+    scale = B * B + abs(A * C)
+    if disc < -SLACK * scale:
+        return 0.0, -1.0
+    sq = math.sqrt(max(disc, 0.0) + SLACK * scale)
+    m = SLACK * (L + math.sqrt(ww) + R0)
+    ta = (B - sq) / A - m
+    tb = (B + sq) / A + m
+    return max(ta, 0.0), min(tb, L)
+
+
+@kernel
+def kernel_curvature_max(n, sigma, norm):
+    """``max(max|k''|, max|k'(s)/s|)`` of ``k(s) = N (1 − s²/σ²)^(n/2)`` (docs/math.md §10).
+
+    ``k'(s)/s = −N n/σ² (1 − u)^(m−1)`` (``u = s²/σ²``) is at most ``N n/σ²``;
+    ``k'' = −N n/σ² [(1 − u)^(m−1) − 2(m − 1) u (1 − u)^(m−2)]``, a difference
+    of two non-negative terms, the first at most 1, the second at most
+    ``2 (1 − 1/(m − 1))^(m−2)`` (its maximum, at ``u = 1/(m − 1)``). For
+    ``n = 2`` the gradient jumps at the support's edge: no bound (inf).
+    """
+    m = n // 2
+    if m < 2:
+        return np.inf
+    second = 2.0 * (1.0 - 1.0 / (m - 1.0)) ** (m - 2) if m > 2 else 2.0
+    return norm * n / (sigma * sigma) * max(1.0, second)
+
+
+#: pieces of the reach interval bounded separately (tighter than one piece:
+#: the kernel's slope and curvature fall off away from the foot of c)
+PIECES = 8
+
+
+@kernel
+def _slope_sup(s, n, sigma, norm, k1):
+    """``sup |k'(s')|`` over ``s' >= s`` (|k'| rises up to d* = sigma/sqrt(n-1), then falls)."""
+    if s >= sigma:
+        return 0.0
+    if s * s * (n - 1.0) <= sigma * sigma:
+        return k1
+    u = s * s / (sigma * sigma)
+    return norm * n * s / (sigma * sigma) * (1.0 - u) ** (n // 2 - 1)
+
+
+@kernel
+def _curvature_sup(s, n, sigma, norm, k2):
+    """``sup max(|k''(s')|, |k'(s')/s'|)`` over ``s' >= s`` (see :func:`kernel_curvature_max`)."""
+    if s >= sigma:
+        return 0.0
+    m = n // 2
+    if m < 2:
+        return np.inf
+    u = s * s / (sigma * sigma)
+    first = (1.0 - u) ** (m - 1)
+    if m == 2:
+        second = 2.0
+    else:
+        v = max(u, 1.0 / (m - 1.0))
+        second = 2.0 * (m - 1.0) * v * (1.0 - v) ** (m - 2)
+    return min(k2, norm * n / (sigma * sigma) * max(first, second))
+
+
+@kernel
+def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
+    """Slope, curvature and value bounds of segment ``i`` over the disc, from the
+    axis points ``t`` in ``[ta, tb]``, split into ``PIECES`` pieces: on a piece,
+    ``s >= (dist(c, piece) - r) / tau_max`` and ``1/tau <= 1/tau_min``."""
+    wx = cx - seg[i, AX]
+    wy = cy - seg[i, AY]
+    wz = cz - seg[i, AZ]
+    ux = seg[i, UX]
+    uy = seg[i, UY]
+    uz = seg[i, UZ]
+    wu = wx * ux + wy * uy + wz * uz
+    tau0 = seg[i, TAU0]
+    d = seg[i, DELTA]
+    step = (tb - ta) / PIECES
+    g = 0.0
+    h = 0.0
+    f = 0.0
+    for j in range(PIECES):
+        t0 = ta + j * step
+        t1 = tb if j == PIECES - 1 else t0 + step
+        tc = min(max(wu, t0), t1)
+        ex = wx - tc * ux
+        ey = wy - tc * uy
+        ez = wz - tc * uz
+        dist = math.sqrt(ex * ex + ey * ey + ez * ez)
+        tau_lo = tau0 + d * t0
+        tau_hi = tau0 + d * t1
+        if not tau_lo > 0.0:
+            return np.inf, np.inf, np.inf
+        s_lo = max(dist * (1.0 - SLACK) - r, 0.0) / (tau_hi * (1.0 + SLACK))
+        ln = t1 - t0
+        g += ln * _slope_sup(s_lo, n, sigma, norm, k1) / (tau_lo * tau_lo)
+        h += ln * _curvature_sup(s_lo, n, sigma, norm, k2) / (tau_lo * tau_lo * tau_lo)
+        if s_lo < sigma:           # k falls with s: k(s') <= k(s_lo)
+            f += ln * norm * (1.0 - s_lo * s_lo / (sigma * sigma)) ** (n // 2) / tau_lo
+    return g, h, f
+
+
+@kernel
+def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
+    """Slope and curvature bounds of the field over discs of the plane ``z``.
+
+    Parameters
+    ----------
+    seg : (m, 10) float64
+        Segment table (:mod:`slicer._kernels.field`).
+    ids : (q,) int64
+        Segments to consider (those whose support meets the plane).
+    cx, cy, r : (c,) float64, mm
+        Disc centres and radii.
+    z : float, mm
+    n, sigma, norm : int, float, float
+        Kernel degree, support factor and normalisation.
+
+    Returns
+    -------
+    G : (c,) float64, 1/mm
+        Upper bound of ``‖∇F‖`` over each disc (0: no support reaches it).
+    H : (c,) float64, 1/mm²
+        Upper bound of the Hessian's norm over each disc (inf: none).
+    U : (c,) float64
+        Upper bound of ``F`` over each disc (the integrand ``k(s)/tau`` is at
+        most ``k(s_lo)/tau_min`` on each piece).
+    """
+    k1 = kprime_max(n, sigma, norm)
+    k2 = kernel_curvature_max(n, sigma, norm)
+    nc = cx.shape[0]
+    G = np.zeros(nc)
+    H = np.zeros(nc)
+    U = np.zeros(nc)
+    for j in range(nc):
+        g = 0.0
+        h = 0.0
+        u = 0.0
+        for q in range(ids.shape[0]):
+            i = ids[q]
+            ta, tb = _reach_interval(seg, i, cx[j], cy[j], z, r[j], sigma)
+            if not tb > ta:
+                continue
+            gi, hi, ui = _piece_bounds(seg, i, cx[j], cy[j], z, r[j], ta, tb, n, sigma, norm, k1, k2)
+            g += gi
+            h += hi
+            u += ui
+        G[j] = g * (1.0 + SLACK)
+        H[j] = h * (1.0 + SLACK)
+        U[j] = u * (1.0 + SLACK)
+    return G, H, U

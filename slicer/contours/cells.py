@@ -1,0 +1,395 @@
+"""Guaranteed contours of a layer plane: an adaptive quadtree settled by bounds.
+
+The plane ``z`` is covered by square root cells, which are split (quadtree)
+until each leaf is *settled* -- proven all inside or all outside -- or
+*simple* -- the field is proven strictly monotone in x and in y over it, so
+the section's boundary crosses it as at most one arc, whose ends the corner
+signs give -- or the leaf's diagonal is at most the tolerance. The proofs use
+the field and its gradient at the cell's centre ``c`` and sound bounds over
+the disc of radius ``r`` (half the diagonal) around it
+(:mod:`slicer._kernels.cellbounds`, docs/math.md §10): with ``G`` a bound of
+``‖∇F‖`` and ``H`` of the Hessian's norm over the disc,
+
+* ``|F(p) − F(c)| <= r min(G, ‖∇F(c)‖ + r H / 2)`` (settled when this keeps
+  ``F`` on one side of 1);
+* ``|∂F/∂x(p) − ∂F/∂x(c)| <= r H`` (simple when neither partial can vanish).
+
+Every leaf boundary is walked counter-clockwise through all leaf corners on
+it (neighbouring leaves may be smaller), each sign change is an *elementary
+edge* shared by exactly two leaves, and each exit from the inside is joined to
+the next entry, as in marching squares; elementary edges get their vertex by
+the bracketed root solve (:func:`slicer.contours.roots.solve_crossings`).
+No part of the section wider than the tolerance can hide inside a leaf:
+settled leaves hold none of the boundary, simple leaves hold one arc, and the
+others are smaller than the tolerance.
+
+Everything is a function of the skeleton, ``z``, the domain and ``tol``: the
+result does not depend on pixel size or thread count.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._kernels.cellbounds import SLACK, disc_bounds
+from .._kernels.contours import chain_rings
+from ..errors import OptionError
+from ..field import point_grid, support_boxes
+from ..skeleton import Skeleton
+from .roots import _field, solve_crossings
+from .simplify import CHORD_FRACTION
+
+#: relative error budget of one closed-form field evaluation (docs/math.md §2.6
+#: and the stiff-case suite: ~1e-13); cells are settled only beyond it
+FIELD_SLACK = 1e-9
+
+#: root cells have this many times the median radius of the plane's struts
+ROOT_CELL_RADII = 0.5
+
+#: sagitta of a chord of length l across an arc of curvature <= kappa, l kappa <= 1:
+#: at most SAGITTA * l**2 * kappa (1/8 for small angles, 0.134 at l kappa = 1)
+SAGITTA = 0.145
+
+#: smallest tolerance as a multiple of the float64 spacing at the scene's coordinates
+TOL_ULPS = 1024
+
+# leaf states
+OUT, IN, SIMPLE, ONEDIR, SMALL = 0, 1, 2, 3, 4
+
+
+def check_resolvable(skel: Skeleton, tol: float, name: str = "--contour-tol") -> float:
+    """Refuse a tolerance that float64 cannot resolve at the scene's coordinates.
+
+    Raises
+    ------
+    OptionError
+        When ``tol`` is below ``TOL_ULPS`` float64 spacings of the largest
+        coordinate of the scene's support.
+    """
+    if skel.n_segments == 0:
+        return tol
+    lo, hi = support_boxes(skel)
+    big = float(max(np.abs(lo).max(), np.abs(hi).max(), 1.0))
+    least = TOL_ULPS * float(np.spacing(big))
+    if not tol >= least:
+        raise OptionError(f"{name} {tol!r} mm is below what float64 resolves at the scene's coordinates "
+                          f"(|x| up to {big:.6g} mm): use at least {least:.3g} mm")
+    return tol
+
+
+def plane_segments(skel: Skeleton, z: float) -> np.ndarray:
+    """Indices of the segments whose support box meets the plane ``z``, (q,) int64."""
+    lo, hi = support_boxes(skel)
+    return np.flatnonzero((lo[:, 2] <= z) & (z <= hi[:, 2])).astype(np.int64)
+
+
+class _Bounds:
+    """Field, gradient and the disc bounds at cell centres of one plane."""
+
+    def __init__(self, skel: Skeleton, z: float, ids: np.ndarray, tol: float):
+        self.skel, self.z, self.ids, self.tol = skel, float(z), ids, float(tol)
+        self.table = point_grid(skel)[0]
+        self.evaluations = 0
+
+    def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
+        """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
+        and a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none)."""
+        sk = self.skel
+        G, H, U = disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
+        # the bound of F over the disc stays below 1 (or no support reaches it): outside, no evaluation
+        far = U * (1.0 + FIELD_SLACK) < 1.0
+        reach = np.flatnonzero(~far)
+        f = np.zeros(cx.size)
+        g = np.zeros((cx.size, 3))
+        if reach.size:
+            p = np.column_stack([cx[reach], cy[reach], np.full(reach.size, self.z)])
+            f[reach], g[reach] = _field(self.skel, p, gradient=True)
+            self.evaluations += reach.size
+        gx, gy = g[:, 0], g[:, 1]
+        gn = np.hypot(gx, gy)
+        with np.errstate(invalid="ignore", over="ignore"):
+            spread = r * np.minimum(G, gn + 0.5 * r * H)
+            spread = np.where(np.isnan(spread), np.inf, spread)
+            fs = FIELD_SLACK * (1.0 + np.abs(f))
+            gs = FIELD_SLACK * (gn + G) + r * H
+            gs = np.where(np.isnan(gs), np.inf, gs)
+        state = np.full(cx.size, -1, np.int8)
+        state[(f + spread + fs < 1.0) | far] = OUT
+        state[f - spread - fs > 1.0] = IN
+        mx = np.abs(gx) > gs
+        my = np.abs(gy) > gs
+        state[(state < 0) & mx & my] = SIMPLE
+        # monotone in one direction: along the other one, an edge of side
+        # s = r sqrt(2) may hide a cap of depth <= H s^2 / (8 g_min) (F - 1
+        # is <= 0 at the ends of the sub-edge and |F''| <= H along it)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            gmin = np.maximum(np.abs(gx), np.abs(gy)) - gs
+            cap = H * r * r / (4.0 * gmin)
+        state[(state < 0) & (mx | my) & (gmin > 0) & (cap <= 0.5 * self.tol)] = ONEDIR
+        # curvature of the contour in the cell: |F_tt| / |grad F| <= H / (least |grad_xy F|)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            glo = gn - gs
+            kappa = np.where(glo > 0, H / np.where(glo > 0, glo, 1.0), np.inf)
+        return state, kappa
+
+
+def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int, levels: int):
+    """Leaves of the quadtree over ``nx x ny`` root cells of side ``s0``.
+
+    Returns
+    -------
+    X0, Y0, X1, Y1 : (l,) int64
+        Leaf corners on the finest lattice (spacing ``s0 / 2**levels``).
+    state : (l,) int8
+    kappa : (l,) float64
+        Bound of the contour's curvature in each leaf, 1/mm.
+    cells : int
+        Cells examined.
+    """
+    iy, ix = np.divmod(np.arange(nx * ny, dtype=np.int64), nx)
+    out = []
+    cells = 0
+    for lev in range(levels + 1):
+        if ix.size == 0:
+            break
+        s = s0 / 2.0 ** lev
+        r = np.full(ix.size, 0.5 * math.sqrt(2.0) * s * (1.0 + SLACK))
+        state, kappa = bounds.classify(x0 + (ix + 0.5) * s, y0 + (iy + 0.5) * s, r)
+        cells += ix.size
+        if lev == levels:
+            state[state < 0] = SMALL
+        done = state >= 0
+        unit = 1 << (levels - lev)
+        out.append((ix[done] * unit, iy[done] * unit, unit, state[done], kappa[done]))
+        split = ~done
+        ix = (2 * ix[split][:, None] + np.array([0, 1, 0, 1])).ravel()
+        iy = (2 * iy[split][:, None] + np.array([0, 0, 1, 1])).ravel()
+    X0 = np.concatenate([o[0] for o in out])
+    Y0 = np.concatenate([o[1] for o in out])
+    size = np.concatenate([np.full(o[0].size, o[2], np.int64) for o in out])
+    state = np.concatenate([o[3] for o in out])
+    kappa = np.concatenate([o[4] for o in out])
+    return X0, Y0, X0 + size, Y0 + size, state, kappa, cells
+
+
+def _edge_points(line: np.ndarray, keys_line: np.ndarray, keys_pos: np.ndarray,
+                 a: np.ndarray, b: np.ndarray, big: int):
+    """Lattice points strictly inside each edge ``(line, a..b)``: the slice
+    ``[start, stop)`` of the points sorted by ``(line, pos)``."""
+    key = keys_line * big + keys_pos
+    start = np.searchsorted(key, line * big + a, side="right")
+    stop = np.searchsorted(key, line * big + b, side="left")
+    return start, stop
+
+
+def _boundary_walks(X0, Y0, X1, Y1):
+    """Counter-clockwise walks over the boundaries of leaves, through every
+    leaf corner lying on them.
+
+    Returns
+    -------
+    px, py : (v,) int64
+        Unique lattice points (corners of the given leaves).
+    leaf : (w,) int64
+        Leaf of each walk step (steps grouped by leaf, in walk order).
+    point : (w,) int64
+        Point index of each step.
+    """
+    cx = np.concatenate([X0, X1, X1, X0])
+    cy = np.concatenate([Y0, Y0, Y1, Y1])
+    big = int(max(cx.max(), cy.max())) + 2
+    uniq = np.unique(cy * big + cx)
+    py, px = np.divmod(uniq, big)
+    # points sorted by row (for horizontal edges): uniq already is (y, x) order
+    by_row_y, by_row_x = py, px
+    col_key = px * big + py
+    ocol = np.argsort(col_key, kind="stable")
+    by_col_x, by_col_y = px[ocol], py[ocol]
+    n = X0.size
+    # the four sides, each a run of interior points in walk order
+    # bottom: y = Y0, x from X0 to X1 (increasing); right: x = X1, y increasing;
+    # top: y = Y1, x decreasing; left: x = X0, y decreasing
+    bs, be = _edge_points(Y0, by_row_y, by_row_x, X0, X1, big)
+    rs, re = _edge_points(X1, by_col_x, by_col_y, Y0, Y1, big)
+    ts, te = _edge_points(Y1, by_row_y, by_row_x, X0, X1, big)
+    ls, le = _edge_points(X0, by_col_x, by_col_y, Y0, Y1, big)
+    corner = lambda x, y: np.searchsorted(uniq, y * big + x)   # noqa: E731
+    c_bl, c_br, c_tr, c_tl = corner(X0, Y0), corner(X1, Y0), corner(X1, Y1), corner(X0, Y1)
+    counts = 4 + (be - bs) + (re - rs) + (te - ts) + (le - ls)
+    leaf = np.repeat(np.arange(n, dtype=np.int64), counts)
+    off = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    point = np.empty(leaf.size, np.int64)
+    # positions of each piece inside the leaf's run
+    pos_bl = off
+    pos_b = pos_bl + 1
+    pos_br = pos_b + (be - bs)
+    pos_r = pos_br + 1
+    pos_tr = pos_r + (re - rs)
+    pos_t = pos_tr + 1
+    pos_tl = pos_t + (te - ts)
+    pos_l = pos_tl + 1
+    point[pos_bl] = c_bl
+    point[pos_br] = c_br
+    point[pos_tr] = c_tr
+    point[pos_tl] = c_tl
+
+    def fill(pos, s, e, src, reverse):
+        m = e - s
+        tot = int(m.sum())
+        if tot == 0:
+            return
+        j = np.arange(tot) - np.repeat(np.cumsum(m) - m, m)
+        k = np.where(reverse, np.repeat(e, m) - 1 - j, np.repeat(s, m) + j)
+        point[np.repeat(pos, m) + j] = src[k]
+
+    row_idx = np.arange(uniq.size)             # rows: sorted order is the point order
+    fill(pos_b, bs, be, row_idx, False)
+    fill(pos_r, rs, re, ocol, False)
+    fill(pos_t, ts, te, row_idx, True)
+    fill(pos_l, ls, le, ocol, True)
+    return px, py, leaf, point
+
+
+def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | None = None,
+                     root_cell: float | None = None, certified: list | None = None) -> list[np.ndarray]:
+    """Rings of the exact section ``F(x, y, z) >= 1``, every feature wider than ``tol``.
+
+    Parameters
+    ----------
+    skel : Skeleton
+    z : float, mm
+    tol : float, mm
+        Leaves are split until their diagonal is at most ``tol``; vertices are
+        root-solved to ``tol`` along leaf edges.
+    stats : dict, optional
+        Updated with ``evaluations``, ``cells``, ``leaves``, ``small_leaves``,
+        ``vertices``, ``unbracketed``.
+    root_cell : float, optional, mm
+        Side of the root cells (default: ``ROOT_CELL_RADII`` times the median
+        radius of the plane's struts).
+    certified : list, optional
+        Filled with one (n_q,) bool array per ring: chord ``i -> i + 1`` lies in
+        a simple leaf whose curvature bound ``kappa`` proves its arc within
+        ``CHORD_FRACTION * tol`` of it: ``SAGITTA * l**2 * kappa <= CHORD_FRACTION * tol``
+        and ``l * kappa <= 1`` (an arc of curvature at most kappa, turning less than
+        a half turn, is no farther from its chord than the circular arc of curvature
+        kappa: ``(1 - sqrt(1 - (l kappa / 2)**2)) / kappa <= 0.134 l**2 kappa``).
+
+    Returns
+    -------
+    list of (n_q, 2) float64
+        Outer rings counter-clockwise, holes clockwise (not yet refined).
+    """
+    st = {"evaluations": 0, "cells": 0, "leaves": 0, "small_leaves": 0, "vertices": 0, "unbracketed": 0}
+    rings = []
+    ids = plane_segments(skel, z)
+    if ids.size:
+        rings = _plane_rings(skel, float(z), tol, ids, root_cell, certified, st)
+    if stats is not None:
+        for key, v in st.items():
+            stats[key] = stats.get(key, 0) + v
+    return rings
+
+
+def _root_grid(skel: Skeleton, ids: np.ndarray, tol: float, root_cell: float | None):
+    """Root cells over the support of the plane's segments, one empty cell all around:
+    ``(x0, y0, s0, nx, ny, levels)``."""
+    lo, hi = support_boxes(skel)
+    xlo, ylo = lo[ids, 0].min(), lo[ids, 1].min()
+    xhi, yhi = hi[ids, 0].max(), hi[ids, 1].max()
+    if root_cell is None:
+        root_cell = ROOT_CELL_RADII * float(np.median(skel.radii[ids].mean(axis=1)))
+    s0 = float(min(max(root_cell, 4.0 * tol), max(xhi - xlo, yhi - ylo)))
+    levels = max(0, int(math.ceil(math.log2(math.sqrt(2.0) * s0 / tol))))
+    nx = int(math.ceil((xhi - xlo) / s0)) + 2
+    ny = int(math.ceil((yhi - ylo) / s0)) + 2
+    return xlo - s0, ylo - s0, s0, nx, ny, levels
+
+
+def _next_in_group(group: np.ndarray) -> np.ndarray:
+    """Index of the next element of the same (contiguous) group, cyclically."""
+    nxt = np.arange(group.size) + 1
+    last = np.flatnonzero(np.r_[group[1:] != group[:-1], True])
+    nxt[last] = np.r_[0, last[:-1] + 1]
+    return nxt
+
+
+def _pair_crossings(leaf, point, inside, npts: int):
+    """Sign changes along the leaves' walks, paired exit -> next entry in each leaf.
+
+    Returns
+    -------
+    ukey : (e,) int64
+        Elementary edges with a crossing, ``inside point * npts + outside point``.
+    succ : (e,) int64
+        The edge each one's segment leads to.
+    exit_leaf : (e,) int64
+        Walk-leaf index of the segment leaving each edge.
+    """
+    a_pt, b_pt = point, point[_next_in_group(leaf)]
+    cx_i = np.flatnonzero(inside[a_pt] != inside[b_pt])
+    if cx_i.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    exit_ = inside[a_pt[cx_i]]                     # inside -> outside going counter-clockwise
+    lf = leaf[cx_i]
+    nxt_c = _next_in_group(lf)                     # the partner of an exit: the next crossing
+    e_in = np.where(exit_, a_pt[cx_i], b_pt[cx_i])
+    e_out = np.where(exit_, b_pt[cx_i], a_pt[cx_i])
+    ukey, eid = np.unique(e_in * npts + e_out, return_inverse=True)
+    ex = np.flatnonzero(exit_)
+    succ = np.full(ukey.size, -1, np.int64)
+    succ[eid[ex]] = eid[nxt_c[ex]]
+    exit_leaf = np.full(ukey.size, -1, np.int64)
+    exit_leaf[eid[ex]] = lf[ex]
+    return ukey, succ, exit_leaf
+
+
+def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray]:
+    """:func:`guaranteed_rings` for a plane that some supports meet."""
+    x0, y0, s0, nx, ny, levels = _root_grid(skel, ids, tol, root_cell)
+    bounds = _Bounds(skel, z, ids, tol)
+    X0, Y0, X1, Y1, state, kappa, cells = _quadtree(bounds, x0, y0, s0, nx, ny, levels)
+    st["cells"] += cells
+    st["leaves"] += X0.size
+    st["small_leaves"] += int((state == SMALL).sum())
+    st["evaluations"] += bounds.evaluations
+    act = np.flatnonzero(state >= SIMPLE)
+    if act.size == 0:
+        return []
+    px, py, leaf, point = _boundary_walks(X0[act], Y0[act], X1[act], Y1[act])
+    h = s0 / 2.0 ** levels
+    wx, wy = x0 + px * h, y0 + py * h
+    f = _field(skel, np.column_stack([wx, wy, np.full(px.size, z)]))[0]
+    st["evaluations"] += px.size
+    ukey, succ, exit_leaf = _pair_crossings(leaf, point, f >= 1.0, px.size)
+    if ukey.size == 0:
+        return []
+    order, starts, status = chain_rings(succ)
+    if status != 0:   # pragma: no cover - every elementary edge borders two walked leaves
+        raise RuntimeError("guaranteed contours: crossings do not chain into closed rings")
+    ui, uo = np.divmod(ukey, px.size)
+    za = np.full(ui.size, z)
+    A = np.column_stack([wx[ui], wy[ui], za])
+    B = np.column_stack([wx[uo], wy[uo], za])
+    _, tt, ok, ne = solve_crossings(skel, A, B, tol, fa=f[ui], fb=f[uo])
+    st["evaluations"] += ne
+    st["unbracketed"] += int((~ok).sum())
+    tt = np.clip(tt, 1e-6, 1.0 - 1e-6)            # keep vertices off the lattice points: rings stay simple
+    verts = (A + tt[:, None] * (B - A))[:, :2]
+    st["vertices"] += int(ukey.size)
+    rings = [verts[order[starts[q]:starts[q + 1]]] for q in range(starts.size - 1)]
+    if certified is not None:
+        lk = act[exit_leaf]                        # the leaf each chord crosses
+        kq = np.where(state[lk] == SIMPLE, kappa[lk], np.inf)
+        for q in range(starts.size - 1):
+            ids_q = order[starts[q]:starts[q + 1]]
+            r_q = verts[ids_q]
+            ell = np.hypot(*(np.roll(r_q, -1, axis=0) - r_q).T)
+            k_q = kq[ids_q]
+            with np.errstate(invalid="ignore", over="ignore"):
+                certified.append((SAGITTA * ell * ell * k_q <= CHORD_FRACTION * tol) & (ell * k_q <= 1.0))
+    return rings
+
+
+__all__ = ["guaranteed_rings", "check_resolvable", "plane_segments", "FIELD_SLACK", "ROOT_CELL_RADII"]

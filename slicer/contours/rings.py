@@ -1,0 +1,64 @@
+"""Ring assembly: oriented rings to valid MultiPolygons."""
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely.geometry.polygon import orient
+
+def signed_areas(rings: list[np.ndarray]) -> np.ndarray:
+    """Shoelace area of each ring, mm^2 (positive: counter-clockwise)."""
+    out = np.empty(len(rings))
+    for q, r in enumerate(rings):
+        x, y = r[:, 0], r[:, 1]
+        out[q] = 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    return out
+
+
+def rings_to_multipolygon(rings: list[np.ndarray]):
+    """Assemble disjoint simple rings into a MultiPolygon.
+
+    Counter-clockwise rings are outer boundaries, clockwise rings holes; each
+    hole goes to the smallest outer ring that contains it. Orientation is kept
+    as given.
+
+    Parameters
+    ----------
+    rings : list of (n_q, 2) float64, mm
+
+    Returns
+    -------
+    shapely.MultiPolygon
+    """
+    rings = [r for r in rings if r.shape[0] >= 3]
+    if not rings:
+        return shapely.MultiPolygon()
+    area = signed_areas(rings)
+    outer = np.flatnonzero(area > 0)
+    holes = np.flatnonzero(area < 0)
+    shells = [shapely.Polygon(rings[q]) for q in outer]
+    owned: list[list[np.ndarray]] = [[] for _ in outer]
+    if holes.size and outer.size:
+        tree = shapely.STRtree(shells)
+        probe = shapely.points(np.array([rings[q][0] for q in holes]))
+        hi, oi = tree.query(probe, predicate="within")
+        best = np.full(holes.size, -1)
+        for h, o in zip(hi, oi):
+            if best[h] < 0 or area[outer[o]] < area[outer[best[h]]]:
+                best[h] = o
+        for h, o in enumerate(best):
+            if o >= 0:
+                owned[o].append(rings[holes[h]])
+    polys = [shapely.Polygon(rings[q], owned[s]) for s, q in enumerate(outer)]
+    return shapely.MultiPolygon(polys)
+
+
+
+def _polygons_only(geom):
+    """The polygons of a shapely geometry as an oriented MultiPolygon (outer rings
+    counter-clockwise, holes clockwise)."""
+    polys = [g for g in shapely.get_parts(geom) if g.geom_type == "Polygon" and not g.is_empty]
+    polys += [p for g in shapely.get_parts(geom) if g.geom_type == "MultiPolygon" for p in g.geoms]
+    return shapely.MultiPolygon([orient(p, 1.0) for p in polys])
+
+
+__all__ = ["signed_areas", "rings_to_multipolygon"]

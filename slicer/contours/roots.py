@@ -1,0 +1,210 @@
+"""Root solving on segments of a layer plane: bracketed crossings of ``F = 1``,
+first-order distances to the contour and projections onto it (docs/contours.md)."""
+from __future__ import annotations
+
+import numpy as np
+
+from .._kernels.launch import serial
+from ..checks import positive_number
+from ..errors import GridError
+from ..field import evaluate
+from ..skeleton import Skeleton
+
+#: iterations of the bracketed solver before it gives up (bisection halves
+#: the bracket at least every other step, so 200 is far beyond need)
+MAX_ITER = 200
+
+#: batches smaller than this are evaluated on one thread: waking the pool
+#: costs more than it saves, and on a loaded machine a parallel launch can
+#: wait a whole scheduler time slice for its second thread
+SERIAL_BATCH = 4096
+
+
+def _field(skel: Skeleton, points: np.ndarray, gradient: bool = False):
+    """:func:`slicer.field.evaluate`, serial for small batches (same values)."""
+    if points.shape[0] >= SERIAL_BATCH:
+        return evaluate(skel, points, gradient)
+    with serial():
+        return evaluate(skel, points, gradient)
+
+
+def _check_tol(tol) -> float:
+    return positive_number(tol, "contour tolerance", GridError)
+
+
+def solve_crossings(skel: Skeleton, a: np.ndarray, b: np.ndarray, tol: float,
+                    fa: np.ndarray | None = None, fb: np.ndarray | None = None):
+    """Points where ``F = 1`` on segments ``a -> b``, to ``tol`` mm.
+
+    Each segment must bracket the surface: ``F(a) >= 1 > F(b)``. The bracket
+    ``[lo, hi]`` is narrowed by Illinois (modified regula falsi) steps, kept
+    ``tol/2`` inside the bracket, with a bisection step whenever two steps
+    fail to halve it, until it is at most ``tol`` long; the answer is the
+    secant point of the final bracket, so it is within ``tol`` of a root.
+    Every iteration evaluates the field at all unfinished segments in one
+    compiled batch.
+
+    Parameters
+    ----------
+    skel : Skeleton
+    a, b : (n, 3) float64, mm
+        Inside and outside ends.
+    tol : float, mm
+    fa, fb : (n,) float64, optional
+        Field at ``a`` and ``b`` if already known.
+
+    Returns
+    -------
+    points : (n, 3) float64, mm
+    t : (n,) float64
+        Position along each segment, in [0, 1].
+    bracketed : (n,) bool
+        False where ``F(a) >= 1 > F(b)`` does not hold; such a segment gets
+        the end whose field is closer to 1.
+    evaluations : int
+        Field evaluations spent.
+    """
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    b = np.ascontiguousarray(b, dtype=np.float64)
+    n = a.shape[0]
+    evals = 0
+    if fa is None:
+        fa = _field(skel, a)[0]
+        evals += n
+    if fb is None:
+        fb = _field(skel, b)[0]
+        evals += n
+    d = b - a
+    length = np.sqrt((d * d).sum(axis=1))
+    glo = fa - 1.0
+    ghi = fb - 1.0
+    bracketed = (glo >= 0.0) & (ghi < 0.0)
+    lo = np.zeros(n)
+    hi = np.ones(n)
+    t = np.where(np.abs(glo) <= np.abs(ghi), 0.0, 1.0)
+    side = np.zeros(n, np.int8)          # last end moved: +1 lo, -1 hi
+    with np.errstate(divide="ignore"):
+        tol_t = np.where(length > 0, tol / length, 1.0)
+    width1 = hi - lo                      # bracket width one and two steps ago
+    width2 = hi - lo
+    act = np.flatnonzero(bracketed & (length > tol))
+    t[bracketed] = np.where(glo[bracketed] == 0.0, 0.0, 0.5)
+    it = 0
+    while act.size and it < MAX_ITER:
+        it += 1
+        l, h, gl, gh = lo[act], hi[act], glo[act], ghi[act]
+        w = h - l
+        q = 0.5 * tol_t[act]
+        ts = l + w * gl / (gl - gh)             # gl >= 0 > gh: a point in [l, h]
+        # stay tol/2 inside the bracket: near the root, the next step then
+        # lands on the other side and closes the bracket to ~tol
+        ts = np.minimum(np.maximum(ts, l + q), h - q)
+        bis = (w > 0.5 * width2[act]) & (it > 2) | ~(ts > l) | ~(ts < h)
+        tm = np.where(bis, 0.5 * (l + h), ts)
+        width2[act] = width1[act]
+        width1[act] = w
+        f = _field(skel, a[act] + tm[:, None] * d[act])[0]
+        evals += act.size
+        g = f - 1.0
+        up = g >= 0.0                           # root above tm
+        sd = side[act]
+        # Illinois: halve the stale end's value when the same end moves twice
+        gh_new = np.where(up & (sd == 1), 0.5 * gh, gh)
+        gl_new = np.where(~up & (sd == -1), 0.5 * gl, gl)
+        lo[act] = np.where(up, tm, l)
+        glo[act] = np.where(up, g, gl_new)
+        hi[act] = np.where(up, h, tm)
+        ghi[act] = np.where(up, gh_new, g)
+        side[act] = np.where(up, 1, -1)
+        exact = g == 0.0
+        t[act] = tm
+        done = exact | ((hi[act] - lo[act]) * length[act] <= tol)
+        fin = act[done & ~exact]
+        if fin.size:
+            gl, gh = glo[fin], ghi[fin]
+            # secant point of the final bracket (Illinois-scaled values are
+            # still of the right signs, so it stays inside the bracket)
+            ts = lo[fin] + (hi[fin] - lo[fin]) * gl / (gl - gh)
+            t[fin] = np.clip(ts, lo[fin], hi[fin])
+        act = act[~done]
+    if act.size:   # pragma: no cover - the bisection safeguard makes this unreachable
+        t[act] = 0.5 * (lo[act] + hi[act])
+    return a + t[:, None] * d, t, bracketed, evals
+
+
+
+def plane_distance(skel: Skeleton, xy: np.ndarray, z: float):
+    """First-order distance of points to the contour of layer ``z``, in its plane.
+
+    Parameters
+    ----------
+    skel : Skeleton
+    xy : (n, 2) float64, mm
+    z : float, mm
+
+    Returns
+    -------
+    dist : (n,) float64, mm
+        ``|F - 1| / |grad_xy F|`` (inf where the in-plane gradient vanishes).
+    f : (n,) float64
+    gxy : (n, 2) float64, 1/mm
+    """
+    p = np.column_stack([xy, np.full(xy.shape[0], float(z))])
+    f, g = _field(skel, p, gradient=True)
+    gxy = g[:, :2]
+    gn = np.hypot(gxy[:, 0], gxy[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dist = np.where(gn > 0, np.abs(f - 1.0) / gn, np.inf)
+    return dist, f, gxy
+
+
+def project_to_contour(skel: Skeleton, xy: np.ndarray, z: float, tol: float, reach=None):
+    """Points of the contour of layer ``z`` on the in-plane gradient line through each point.
+
+    The root of ``F = 1`` is bracketed on the segment ``xy +- r n`` (``n`` the
+    unit in-plane gradient, ``r`` three first-order distances plus ``tol``, or
+    ``reach``) and solved to ``tol``. ``|xy - root|`` is then an upper bound (to
+    ``tol``) of the in-plane distance of ``xy`` to the contour.
+
+    Parameters
+    ----------
+    skel : Skeleton
+    xy : (n, 2) float64, mm
+    z : float, mm
+    tol : float, mm
+    reach : (n,) float64, optional, mm
+        Upper limit of the half-length of each search segment.
+
+    Returns
+    -------
+    roots : (n, 2) float64, mm
+        ``xy`` itself where no root was bracketed.
+    ok : (n,) bool
+    first_order : (n,) float64, mm
+        :func:`plane_distance` of the points.
+    evaluations : int
+    """
+    n = xy.shape[0]
+    dist, f, gxy = plane_distance(skel, xy, z)
+    gn = np.hypot(gxy[:, 0], gxy[:, 1])
+    usable = np.isfinite(dist)
+    r = np.where(usable, 3.0 * np.where(usable, dist, 0.0) + tol, 0.0)
+    if reach is not None:
+        r = np.minimum(r, reach)
+    nrm = gxy / np.where(gn > 0, gn, 1.0)[:, None]          # toward growing F: inward
+    zz = np.full(n, float(z))
+    A = np.column_stack([xy + r[:, None] * nrm, zz])
+    B = np.column_stack([xy - r[:, None] * nrm, zz])
+    roots = xy.copy()
+    ok = np.zeros(n, bool)
+    evals = n
+    idx = np.flatnonzero(usable & (r > 0))
+    if idx.size:
+        pts, _, br, ne = solve_crossings(skel, A[idx], B[idx], tol)
+        evals += ne
+        roots[idx[br]] = pts[br, :2]
+        ok[idx[br]] = True
+    return roots, ok, dist, evals
+
+
+__all__ = ["solve_crossings", "plane_distance", "project_to_contour", "MAX_ITER", "SERIAL_BATCH"]
