@@ -26,6 +26,8 @@ MIN_RADIUS = 1e-9
 RESOLUTION_RATIO = 1e9
 #: largest number of voxels (or cells of a reference grid) a job may have
 MAX_CELLS = 10**12
+#: largest count option (bucket edges, threads, tiles): what compiled code's 32-bit ints hold
+MAX_COUNT = 2**31 - 1
 
 
 def fmt_num(value) -> str:
@@ -39,6 +41,8 @@ def fmt_num(value) -> str:
     --------
     >>> fmt_num(0.05), fmt_num(1.2e302), fmt_num(12345), fmt_num(10**300), fmt_num(0.1 + 0.2)
     ('0.05', '1.2e+302', '12,345', '1e+300', '0.3')
+    >>> fmt_num(-10**400), fmt_num(int("9" * 400))
+    ('-1e+400', '9.99999e+399')
     """
     if isinstance(value, np.generic):
         value = value.item()
@@ -46,7 +50,17 @@ def fmt_num(value) -> str:
         return repr(value)
     if isinstance(value, numbers.Integral):
         v = int(value)
-        return f"{v:,}" if abs(v) < 10**15 else f"{float(v):.6g}"
+        if abs(v) < 10**15:
+            return f"{v:,}"
+        try:
+            return f"{float(v):.6g}"
+        except OverflowError:                # beyond float range: the leading digits and the exponent
+            sign = "-" if v < 0 else ""
+            if abs(v).bit_length() >= 14_000:    # str() refuses more than 4,300 digits
+                return f"{sign}an integer of {abs(v).bit_length():,} bits"
+            d = str(abs(v))
+            mantissa = (d[0] + "." + d[1:6]).rstrip("0").rstrip(".")
+            return f"{sign}{mantissa}e+{len(d) - 1}"
     if isinstance(value, numbers.Real):
         v = float(value)
         r = repr(v)
@@ -332,4 +346,4 @@ def _range_text(lo, hi, lo_open, hi_open) -> str:
 
 
 __all__ = ["fmt_num", "number", "positive_number", "integer", "vector", "choice", "magnitude", "coordinates",
-           "resolvable", "scene_numbers", "scene_reach", "scene_step", "MAX_CELLS", "MAX_MAGNITUDE", "MIN_RADIUS", "RESOLUTION_RATIO"]
+           "resolvable", "scene_numbers", "scene_reach", "scene_step", "MAX_CELLS", "MAX_COUNT", "MAX_MAGNITUDE", "MIN_RADIUS", "RESOLUTION_RATIO"]

@@ -26,7 +26,7 @@ from formats.printers import PRINTERS, Printer, PrintSettings, get_printer
 
 from .antialias import check_aa, is_exact
 from .blend import require_sum, require_traceable
-from .checks import coordinates, fmt_num, integer, magnitude
+from .checks import MAX_COUNT, coordinates, fmt_num, integer, magnitude
 from .errors import OptionError
 from .slicing import METHODS
 from .tileplan import parse_size
@@ -336,9 +336,9 @@ def _check_trace(t: TraceOptions) -> None:
     if t.method not in METHODS:
         raise OptionError(f"unknown method {t.method!r}; choose one of {', '.join(sorted(METHODS))}")
     require_traceable(t.blend, method=t.method)
-    integer(t.bucket, "--bucket", lo=0)
+    integer(t.bucket, "--bucket", lo=0, hi=MAX_COUNT)
     if t.threads is not None:
-        integer(t.threads, "--threads", lo=1)
+        integer(t.threads, "--threads", lo=1, hi=MAX_COUNT)
 
 
 def _pitch(g: GridOptions, prn: Printer | None) -> tuple[float, float, float]:

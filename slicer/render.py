@@ -34,7 +34,7 @@ from ._kernels.launch import numba_threads, one_item_per_thread
 from ._kernels.raysupport import kprime_max
 from ._kernels.render import (NSHADE, NSTAT, ROOTS_FULL, ST_CUT, ST_EV_ISOLATE, ST_EV_REFINE, ST_EV_SHADE,
                               ST_EV_SPLIT, ST_ROOTS, ST_STATUS, pixel_rays, render_buckets)
-from .checks import coordinates, positive_number, resolvable, scene_reach
+from .checks import MAX_COUNT, coordinates, integer, positive_number, resolvable, scene_reach
 from .field import segment_table
 from .buckets import Buckets, thread_order
 from .errors import GridError
@@ -322,7 +322,7 @@ def screen_buckets(skel: Skeleton, cam: Camera, size: int = 16) -> ScreenBuckets
     distance from the eye), so rays find their hits nearly sorted.
     """
 
-    B = int(size)
+    B = integer(size, "bucket", GridError, lo=1, hi=MAX_COUNT)
     if isinstance(size, bool) or B < 1:
         raise GridError(f"bucket size must be an integer >= 1 pixel, got {size!r}")
     W, H = cam.width, cam.height
