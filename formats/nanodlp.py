@@ -192,11 +192,21 @@ class NanoDlpWriter(ZipArchiveWriter):
         out[:, :image.shape[1]] = image
         return out
 
-    def write_layer(self, k: int, image: np.ndarray) -> None:
-        self.next_layer(k)
+    parallel_encode = True
+
+    def encode_layer(self, k: int, image: np.ndarray):
+        """(PNG bytes of the packed display image, the layer's info record)."""
         disp = np.ascontiguousarray(self.native(np.asarray(image, dtype=np.uint8)))
-        self.add(f"{k + 1}.png", png_bytes(pack_rgb(disp)), False)
-        self._info.append(layer_info(disp, self.pitch))
+        return png_bytes(pack_rgb(disp)), layer_info(disp, self.pitch)
+
+    def write_layer(self, k: int, image: np.ndarray) -> None:
+        self.store_layer(k, image, self.encode_layer(k, image))
+
+    def store_layer(self, k: int, image: np.ndarray, payload) -> None:
+        self.next_layer(k)
+        data, info = payload
+        self.add(f"{k + 1}.png", data, False)
+        self._info.append(info)
         self._meter.add(image)
         self._top.add(k, image)
         self._k += 1

@@ -57,17 +57,27 @@ class PngStackWriter(StackWriter):
         self._dir = AtomicDir(self.path)
         self._files: list[str] = []
 
-    def write_layer(self, k: int, image: np.ndarray) -> None:
+    parallel_encode = True
+
+    def encode_layer(self, k: int, image: np.ndarray):
+        """The layer's PNG bytes, or the OSError that encoding raised."""
+        try:
+            return png_bytes(image)
+        except OSError as exc:
+            return exc
+
+    def store_layer(self, k: int, image: np.ndarray, payload) -> None:
         if k != len(self._files):
             raise OutputError(f"layers must be written in order: expected {len(self._files)}, got {k}")
         name = LAYER_NAME.format(k)
-        try:
-            data = png_bytes(image)
-        except OSError as exc:
+        if isinstance(payload, OSError):
             self.abort()
-            raise OutputError(f"{self.path}: cannot encode {name} ({exc.strerror or exc})") from None
-        self._dir.write_file(name, data)
+            raise OutputError(f"{self.path}: cannot encode {name} ({payload.strerror or payload})") from None
+        self._dir.write_file(name, payload)
         self._files.append(name)
+
+    def write_layer(self, k: int, image: np.ndarray) -> None:
+        self.store_layer(k, image, self.encode_layer(k, image))
 
     def close(self) -> None:
         g = self.grid

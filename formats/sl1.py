@@ -87,9 +87,17 @@ class Sl1Writer(ZipArchiveWriter):
         self._top = TopView(self.printer.plate_shape)
         self._meter = LayerMeter()
 
+    parallel_encode = True
+
+    def encode_layer(self, k: int, image: np.ndarray) -> bytes:
+        return png_bytes(self.printer.to_native(image))
+
     def write_layer(self, k: int, image: np.ndarray) -> None:
+        self.store_layer(k, image, self.encode_layer(k, image))
+
+    def store_layer(self, k: int, image: np.ndarray, payload: bytes) -> None:
         self.next_layer(k)
-        self.add(f"{self.job}{k:05d}.png", png_bytes(self.printer.to_native(image)), False)
+        self.add(f"{self.job}{k:05d}.png", payload, False)
         self._meter.add(image)
         self._top.add(k, image)
         self._k += 1

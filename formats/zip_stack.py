@@ -82,9 +82,17 @@ class ZipStackWriter(ZipArchiveWriter):
         printer = settings is not None and settings.printer is not None
         self._meter = LayerMeter() if printer else None          # for the print estimate
 
+    parallel_encode = True
+
+    def encode_layer(self, k: int, image: np.ndarray) -> bytes:
+        return png_bytes(image)
+
     def write_layer(self, k: int, image: np.ndarray) -> None:
+        self.store_layer(k, image, self.encode_layer(k, image))
+
+    def store_layer(self, k: int, image: np.ndarray, payload: bytes) -> None:
         self.next_layer(k)
-        self.add(LAYER_NAME.format(k), png_bytes(image), False)
+        self.add(LAYER_NAME.format(k), payload, False)
         if self._meter is not None:
             self._meter.add(image)
         self._k += 1

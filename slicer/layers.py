@@ -12,6 +12,7 @@ import time
 from tqdm import tqdm
 
 from formats import writer_for
+from formats.base import write_ordered
 from formats.printers import place
 
 from .antialias import output_layers
@@ -23,7 +24,8 @@ from .slicing import SliceResult
 
 def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | None = None,
                 force: bool = False, progress: bool | None = None, skel: Skeleton | None = None,
-                contour_tol: float = 1e-3, settings=None, info: dict | None = None) -> float:
+                contour_tol: float = 1e-3, settings=None, info: dict | None = None,
+                workers: int | None = None) -> float:
     """Stream the layers of a result to an output, atomically.
 
     Parameters
@@ -52,6 +54,9 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
     info : dict, optional
         Receives ``estimate``: the writer's print time and resin volume
         (:class:`formats.estimate.PrintEstimate`), None if it has none.
+    workers : int, optional
+        Threads encoding image layers (:func:`formats.base.write_ordered`;
+        default: the cores). The output does not depend on it.
 
     Returns
     -------
@@ -81,9 +86,9 @@ def write_stack(result: SliceResult, out, fmt: str | None = None, meta: dict | N
                                     desc="contours"):
                 writer.write_layer(k, z, polys)
         else:
-            for k, img in enumerate(tqdm(layers, total=grid.layers, unit="layer", disable=hide, leave=False,
-                                         desc="writing")):
-                writer.write_layer(k, img)
+            # encoded on a thread pool, stored in order (byte-identical to a serial run)
+            write_ordered(writer, tqdm(layers, total=grid.layers, unit="layer", disable=hide, leave=False,
+                                       desc="writing"), workers)
     if info is not None:
         info["estimate"] = getattr(writer, "estimate", None)
     return time.perf_counter() - t0

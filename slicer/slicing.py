@@ -183,7 +183,7 @@ def coverage_layers(span_pix: np.ndarray, u0: np.ndarray, u1: np.ndarray, layers
 def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int = 64,
           threads: int | None = None, strict: bool = False, cut_support: bool = True,
           batch: int = 256, spans: bool = False, span_tol: float | None = None,
-          blend: str = "sum") -> SliceResult:
+          blend: str = "sum", lazy: bool = False) -> SliceResult:
     """Classify every voxel centre of ``grid`` (no trimming).
 
     Parameters
@@ -215,6 +215,11 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
         ``union`` (``F = max_i f_i``) is traced strut by strut
         (:mod:`slicer._kernels.union_trace`), with the interval or sampling
         method; ``cut_support`` has no effect there.
+    lazy : bool
+        Interval method, sum blend: the lazy walk (docs/math.md §5.5): the
+        same voxels with about half the primitive evaluations, but more
+        bookkeeping per piece (slower today on the samples; see
+        docs/benchmarks.md).
     """
     if method not in METHODS:
         raise GridError(f"unknown method {method!r}; choose one of {sorted(METHODS)}")
@@ -239,7 +244,8 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
             chunk = thread_order(todo[s:s + batch], sizes[todo[s:s + batch]], nthreads)
             cap = B * B * 4
             results = _run_batch(kern, METHODS[method], chunk, bk, grid, n, sigma, norm,
-                                 kmax, strict, cut_support, cap, RUNS_FULL, spans, span_tol)
+                                 kmax, strict, cut_support, cap, RUNS_FULL, spans, span_tol,
+                                 None if union else lazy)
             for bidx, nrun, rk0, rk1, ne, nx, xz in results:
                 nevals += ne
                 by, bx = divmod(int(bidx), bk.nbx)
@@ -312,12 +318,14 @@ def _pair_crossings(grid: SliceGrid, xpix_parts, xz_parts):
 
 
 def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, kmax, strict,
-               cut_support, cap, RUNS_FULL, spans=False, span_tol=None):
+               cut_support, cap, RUNS_FULL, spans=False, span_tol=None, lazy=None):
     """Run the kernel on a batch of buckets, retrying overflowing ones with more room.
 
     Returns, per bucket, ``(bucket, runs per ray, k0, k1, evaluations,
-    crossings per ray, crossing heights)``.
+    crossings per ray, crossing heights)``. ``lazy`` (None: a kernel without
+    that argument, the union tracer) is passed after ``cut_support``.
     """
+    walk = (cut_support,) if lazy is None else (cut_support, bool(lazy))
     B = bk.size
     out = []
     pending = chunk
@@ -336,7 +344,7 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
             kern(code, pending, bk.nbx, B, grid.width, grid.height, bk.offsets, bk.ids, bk.table,
                  bk.boxes, grid.origin[0], grid.origin[1], grid.pixel_size[0],
                  grid.pixel_size[1], grid.origin[2], grid.layer_height, grid.layers, n, sigma, norm,
-                 kmax, strict, cut_support, bk.longest(), cap, ray_nrun, run_k0, run_k1, stats,
+                 kmax, strict, *walk, bk.longest(), cap, ray_nrun, run_k0, run_k1, stats,
                  spans, span_tol if spans else 0.0, xcap, ray_nx, cross_z)
         retry = []
         for q in range(nb):

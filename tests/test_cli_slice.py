@@ -120,14 +120,14 @@ def test_failure_mid_write_leaves_nothing(scene, tmp_path, monkeypatch):
     from slicer.job import run_slice
     from slicer import load_scene
 
-    real = PngStackWriter.write_layer
+    real = PngStackWriter.store_layer      # the in-order step of writing a layer (encoding runs on a pool)
 
-    def flaky(self, k, image):
+    def flaky(self, k, image, payload):
         if k == 3:
             raise KeyboardInterrupt  # as if the user pressed Ctrl-C
-        return real(self, k, image)
+        return real(self, k, image, payload)
 
-    monkeypatch.setattr(PngStackWriter, "write_layer", flaky)
+    monkeypatch.setattr(PngStackWriter, "store_layer", flaky)
     out = tmp_path / "stack"
     with pytest.raises(KeyboardInterrupt):
         run_slice(load_scene(scene), out, pixel_size=0.1, progress=False)

@@ -213,6 +213,160 @@ def _moments(Y, d, l, nmax, w, J, Yp):
             w[J + j] = (w[J + j - 1] - w[Yp + j] / j) / d
 
 
+# scratch layout of the general series (offsets into one work array, not views):
+# R^(m-1), R^m, the moments J and the powers Y^j, each MAX_COEF long
+MAX_DEGREE = 16                       # largest kernel degree n the layout holds
+MAX_COEF = MAX_DEGREE + 1             # coefficients of R^m, m = n / 2
+S_PA, S_PB, S_J, S_YP = 0, MAX_COEF, 2 * MAX_COEF, 3 * MAX_COEF
+assert S_YP + MAX_DEGREE + 3 <= SCRATCH, "segment_eval's scratch layout outgrows SCRATCH"
+
+
+@inline_kernel
+def _series(Y, d, l, r0, r1, r2, m, grad, scratch):
+    """Any degree n = 2m <= MAX_DEGREE: ``sum_j [R^m]_j J_j`` and, with
+    ``grad``, the two sums ``h0``, ``h1`` of R^(m-1) the gradient needs
+    (docs/math.md §2.4); R(y) = r0 + r1 y + r2 y^2.
+
+    Returns
+    -------
+    f, h0, h1 : float
+        The un-normalised field and gradient sums (h0 = h1 = 0 without ``grad``).
+    """
+    nmax = 2 * m
+    pa = S_PA
+    pb = S_PB
+    J = S_J
+    Yp = S_YP
+    scratch[Yp + 0] = 1.0
+    for j in range(1, nmax + 3):
+        scratch[Yp + j] = scratch[Yp + j - 1] * Y
+    scratch[pa + 0] = 1.0
+    deg = 0
+    for _ in range(m - 1):
+        _poly_mul_quad(scratch, pa, deg + 1, r0, r1, r2, pb)
+        deg += 2
+        for j in range(deg + 1):
+            scratch[pa + j] = scratch[pb + j]
+    # pa = R^(m-1) (degree 2m-2), pb = R^m (degree 2m)
+    _poly_mul_quad(scratch, pa, deg + 1, r0, r1, r2, pb)
+    _moments(Y, d, l, nmax, scratch, J, Yp)
+    f = 0.0
+    for j in range(nmax + 1):
+        f += scratch[pb + j] * scratch[J + j]
+    if not grad:
+        return f, 0.0, 0.0
+    h0 = 0.0
+    h1 = 0.0
+    for j in range(nmax - 1):
+        c = scratch[pa + j]
+        t1 = scratch[Yp + j + 1] / (j + 1)
+        t2 = scratch[Yp + j + 2] / (j + 2)
+        h0 += c * (t1 - d * t2)
+        h1 += c * t2
+    return f, h0, h1
+
+
+@kernel
+def _series_m3(Y, d, l, r0, r1, r2, m, grad):
+    """:func:`_series` for the default kernel n = 6 (m = 3): the same
+    operations in the same order on scalars (bit-identical results), without
+    the work array and the per-degree loops. ``m`` (= 3) is passed, not
+    folded, so that ``z ** nmax`` is the same power routine as the general path's.
+    """
+    nmax = 2 * m
+    y1 = 1.0 * Y
+    y2 = y1 * Y
+    y3 = y2 * Y
+    y4 = y3 * Y
+    y5 = y4 * Y
+    y6 = y5 * Y
+    y7 = y6 * Y
+    y8 = y7 * Y
+    # R = 1 * (r0 + r1 y + r2 y^2), then R^2 and R^3, accumulated as _poly_mul_quad does
+    c0 = 0.0 + 1.0 * r0
+    c1 = 0.0 + 1.0 * r1
+    c2 = 0.0 + 1.0 * r2
+    a0 = 0.0 + c0 * r0
+    a1 = (0.0 + c0 * r1) + c1 * r0
+    a2 = ((0.0 + c0 * r2) + c1 * r1) + c2 * r0
+    a3 = (0.0 + c1 * r2) + c2 * r1
+    a4 = 0.0 + c2 * r2
+    b0 = 0.0 + a0 * r0
+    b1 = (0.0 + a0 * r1) + a1 * r0
+    b2 = ((0.0 + a0 * r2) + a1 * r1) + a2 * r0
+    b3 = ((0.0 + a1 * r2) + a2 * r1) + a3 * r0
+    b4 = ((0.0 + a2 * r2) + a3 * r1) + a4 * r0
+    b5 = (0.0 + a3 * r2) + a4 * r1
+    b6 = 0.0 + a4 * r2
+    # moments J_j = int_0^Y y^j / (1 - d y) dy, j = 0..6 (see _moments)
+    z = d * Y
+    if d == 0.0:
+        j0 = y1 * _RECIP[1]
+        j1 = y2 * _RECIP[2]
+        j2 = y3 * _RECIP[3]
+        j3 = y4 * _RECIP[4]
+        j4 = y5 * _RECIP[5]
+        j5 = y6 * _RECIP[6]
+        j6 = y7 * _RECIP[7]
+    elif z <= 0.5 or z ** nmax <= 0.015625:
+        sm = 0.0
+        zk = 1.0
+        for k in range(200):
+            term = zk * _RECIP[nmax + k + 1]
+            sm += term
+            if term < 1e-17 * sm:
+                break
+            zk *= z
+        j6 = y7 * sm
+        j5 = d * j6 + y6 * _RECIP[6]
+        j4 = d * j5 + y5 * _RECIP[5]
+        j3 = d * j4 + y4 * _RECIP[4]
+        j2 = d * j3 + y3 * _RECIP[3]
+        j1 = d * j2 + y2 * _RECIP[2]
+        j0 = d * j1 + y1 * _RECIP[1]
+    else:
+        j0 = math.log1p(d * l) / d
+        j1 = (j0 - y1 / 1) / d
+        j2 = (j1 - y2 / 2) / d
+        j3 = (j2 - y3 / 3) / d
+        j4 = (j3 - y4 / 4) / d
+        j5 = (j4 - y5 / 5) / d
+        j6 = (j5 - y6 / 6) / d
+    f = 0.0 + b0 * j0
+    f += b1 * j1
+    f += b2 * j2
+    f += b3 * j3
+    f += b4 * j4
+    f += b5 * j5
+    f += b6 * j6
+    if not grad:
+        return f, 0.0, 0.0
+    h0 = 0.0
+    h1 = 0.0
+    t1 = y1 / 1
+    t2 = y2 / 2
+    h0 += a0 * (t1 - d * t2)
+    h1 += a0 * t2
+    t1 = y2 / 2
+    t2 = y3 / 3
+    h0 += a1 * (t1 - d * t2)
+    h1 += a1 * t2
+    t1 = y3 / 3
+    t2 = y4 / 4
+    h0 += a2 * (t1 - d * t2)
+    h1 += a2 * t2
+    t1 = y4 / 4
+    t2 = y5 / 5
+    h0 += a3 * (t1 - d * t2)
+    h1 += a3 * t2
+    t1 = y5 / 5
+    t2 = y6 / 6
+    h0 += a4 * (t1 - d * t2)
+    h1 += a4 * t2
+    return f, h0, h1
+
+
+
 @kernel
 def segment_eval(seg, i, px, py, pz, m, inv_s2, norm, grad, scratch):
     """Field of segment ``i`` at p, and its gradient if ``grad``.
@@ -282,39 +436,13 @@ def segment_eval(seg, i, px, py, pz, m, inv_s2, norm, grad, scratch):
     r2 = p2 - d * p1 + d * d * p0
     if root_b:
         r1 = -(r0 / Y + r2 * Y)   # R(Y) = 0 exactly at a support root
-    nmax = 2 * m
-    # scratch layout (offsets, not views): [0:17] R^(m-1), [17:34] R^m, [34:51] J, [51:70] Y^j
-    pa = 0
-    pb = 17
-    J = 34
-    Yp = 51
-    scratch[Yp + 0] = 1.0
-    for j in range(1, nmax + 3):
-        scratch[Yp + j] = scratch[Yp + j - 1] * Y
-    scratch[pa + 0] = 1.0
-    deg = 0
-    for _ in range(m - 1):
-        _poly_mul_quad(scratch, pa, deg + 1, r0, r1, r2, pb)
-        deg += 2
-        for j in range(deg + 1):
-            scratch[pa + j] = scratch[pb + j]
-    # pa = R^(m-1) (degree 2m-2), pb = R^m (degree 2m)
-    _poly_mul_quad(scratch, pa, deg + 1, r0, r1, r2, pb)
-    _moments(Y, d, l, nmax, scratch, J, Yp)
-    f = 0.0
-    for j in range(nmax + 1):
-        f += scratch[pb + j] * scratch[J + j]
+    if m == 3:
+        f, h0, h1 = _series_m3(Y, d, l, r0, r1, r2, m, grad)
+    else:
+        f, h0, h1 = _series(Y, d, l, r0, r1, r2, m, grad, scratch)
     f *= norm
     if not grad:
         return f, 0.0, 0.0, 0.0
-    h0 = 0.0
-    h1 = 0.0
-    for j in range(nmax - 1):
-        c = scratch[pa + j]
-        t1 = scratch[Yp + j + 1] / (j + 1)
-        t2 = scratch[Yp + j + 2] / (j + 2)
-        h0 += c * (t1 - d * t2)
-        h1 += c * t2
     s = -2.0 * m * norm * inv_s2 / (taua * taua)
     gx = s * (wx * h0 - taua * ux * h1)
     gy = s * (wy * h0 - taua * uy * h1)

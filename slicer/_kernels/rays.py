@@ -19,9 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import inline_kernel, kernel
 from .field import SCRATCH, segment_eval
-from .raysupport import H_TIN, H_TOUT, NHIT, lipschitz
+from .raysupport import H_FMAX, H_TIN, H_TOUT, NHIT, lipschitz
+
+#: relative pad of every verdict "F > 1" / "F < 1" from bounds: a bound must
+#: clear 1 by PAD * (1 + |bound|), far above the rounding of the summed field
+PAD = 1e-10
 
 
 @kernel
@@ -176,41 +180,72 @@ def piece_bounds(hrec, sarr, ns, F, FP, ia, ib, ta, tb, strict):
         monotone and crosses 1 at most once), 0 otherwise. ``strict`` never
         reports a monotone piece.
     """
+    return piece_bounds_iv(hrec, sarr, ns, F, F, FP, ia, ib, ta, tb, strict, None)
+
+
+@inline_kernel
+def prim_bound(hrec, r, f0, f1, g0, g1, d0, d1, ta, tb, strict):
+    """One primitive's share of :func:`piece_bounds_iv` on ``[ta, tb]``:
+    lower bounds ``f0, f1``, upper bounds ``g0, g1`` and slopes ``d0, d1``
+    at the ends.
+
+    An end that is only bounded (``g != f``) with no known direction
+    (both slopes 0) gives ``[min(f0, f1), fmax]`` (``H_FMAX``, the bound on
+    the whole ray) without a Lipschitz bound.
+
+    Returns
+    -------
+    lo, hi : float
+    kind : int
+        +1 increasing, -1 decreasing, 0 zero on the piece, 2 ambiguous.
+    """
+    if g0 == 0.0 and g1 == 0.0 and f0 == 0.0 and f1 == 0.0 and d0 == 0.0 and d1 == 0.0:
+        # zero with zero slope at both ends (outside the support, or a
+        # piece that swallows a whole bump): Lipschitz, never monotone
+        # unless the bound says the primitive is zero on the piece
+        K = lipschitz(hrec, r, ta, tb)
+        return 0.0, 0.5 * K * (tb - ta), 0 if K == 0.0 else 2
+    if not strict and d1 > 0.0 and d0 >= 0.0:
+        return f0, g1, 1
+    if not strict and d0 < 0.0 and d1 <= 0.0:
+        return f1, g0, -1
+    if d0 == 0.0 and d1 == 0.0 and (g0 != f0 or g1 != f1):
+        return min(f0, f1), hrec[r, H_FMAX], 2
+    K = lipschitz(hrec, r, ta, tb)
+    hi = 0.5 * (g0 + g1 + K * (tb - ta))
+    if strict:
+        return max(0.0, 0.5 * (f0 + f1 - K * (tb - ta))), hi, 2
+    return min(f0, f1), hi, 2
+
+
+@kernel
+def piece_bounds_iv(hrec, sarr, ns, F, FH, FP, ia, ib, ta, tb, strict, mstat):
+    """:func:`piece_bounds` from per-primitive *bounds* at the piece's ends.
+
+    ``F[row, s] <= f_s <= FH[row, s]`` (equal where the value is known), and
+    ``FP`` a slope whose sign is the primitive's there (0 where unknown);
+    each primitive's share is :func:`prim_bound`. With exact ends (``FH`` is
+    ``F``) the result is the eager walk's, to the bit. ``mstat`` (None, or
+    (ns,) int64, out) receives each primitive's kind on the piece.
+    """
     lo = 0.0
     hi = 0.0
     n_inc = 0
     n_dec = 0
-    w = tb - ta
     for s in range(ns):
-        f0 = F[ia, s]
-        f1 = F[ib, s]
-        d0 = FP[ia, s]
-        d1 = FP[ib, s]
-        if f0 == 0.0 and f1 == 0.0 and d0 == 0.0 and d1 == 0.0:
-            # zero with zero slope at both ends (outside the support, or a
-            # piece that swallows a whole bump): Lipschitz, never monotone
-            # unless the bound says the primitive is zero on the piece
-            K = lipschitz(hrec, sarr[s], ta, tb)
-            hi += 0.5 * K * w
-            if K == 0.0:
-                n_inc += 1
-                n_dec += 1
-            continue
-        if not strict and d1 > 0.0 and d0 >= 0.0:
-            lo += f0
-            hi += f1
+        a, b, kind = prim_bound(hrec, sarr[s], F[ia, s], F[ib, s], FH[ia, s], FH[ib, s], FP[ia, s], FP[ib, s],
+                                ta, tb, strict)
+        lo += a
+        hi += b
+        if kind == 1:
             n_inc += 1
-        elif not strict and d0 < 0.0 and d1 <= 0.0:
-            lo += f1
-            hi += f0
+        elif kind == -1:
             n_dec += 1
-        else:
-            K = lipschitz(hrec, sarr[s], ta, tb)
-            hi += 0.5 * (f0 + f1 + K * w)
-            if strict:
-                lo += max(0.0, 0.5 * (f0 + f1 - K * w))
-            else:
-                lo += min(f0, f1)
+        elif kind == 0:
+            n_inc += 1
+            n_dec += 1
+        if mstat is not None:
+            mstat[s] = kind
     mono = 0
     if not strict:
         if n_inc == ns:

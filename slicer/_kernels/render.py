@@ -47,8 +47,9 @@ from numba import prange
 
 from .._jit import kernel, parallel_kernel
 from .field import segment_eval
-from .rays import (eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits, sort_unique,
-                   walk_buffers)
+from .lazy import complete_row, lazy_ends
+from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits,
+                   sort_unique, walk_buffers)
 from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, ray_support
 
 OK = 0
@@ -238,8 +239,15 @@ def shade_crossing(shade, dx, dy, dz, gx, gy, gz, rgb):
 @kernel
 def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, strict, bisect,
                cut_support, keep_roots, shade, scratch, hprim, hrec, order, bps, sarr,
-               st_t, st_f, st_fp, ct, cf, cfp, rgb, roots, cap, out4, counts):
+               st_t, st_f, st_fp, ct, cf, cfp, rgb, roots, cap, out4, counts, st_fh, mstat, lazy):
     """All crossings of the ray of pixel (i, j), shaded and composited.
+
+    With ``lazy`` (and not ``strict``), a piece is first bounded lazily
+    (:func:`slicer._kernels.lazy.lazy_ends`: each primitive from its last
+    evaluation, evaluated only while the bound straddles 1); a piece that
+    bound settles holds no crossing and is skipped, any other is walked
+    exactly as before from the exact values at its ends, so the crossings
+    and the image are those of the eager walk.
 
     Parameters
     ----------
@@ -275,6 +283,10 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
     m = n // 2
     inv_s2 = 1.0 / (sigma * sigma)
     ox, oy, oz, dx, dy, dz = pixel_ray(cam, i, j)
+    ray = (ox, oy, oz, dx, dy, dz)
+    kp = (m, inv_s2, norm)
+    rows = (st_f, st_fh, st_fp)
+    cache = (ct, cf, cfp)
     cur = st_f.shape[0] - 1     # row of the values at the current point (stack slots below it)
     u = i + 0.5
     v = j + 0.5
@@ -331,12 +343,22 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
                     sarr[ns] = r
                     ns += 1
                     fmax += hrec[r, H_FMAX]
-            if ns == 0 or fmax < 1.0 - 1e-10 * (1.0 + fmax):
+            if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
                 continue   # the primitives' bounds on the whole ray exclude 1
-            fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, ta, m, inv_s2, norm,
-                                   scratch, st_f, st_fp, cur, ct, cf, cfp)
-            _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, tb, m, inv_s2, norm,
-                                scratch, st_f, st_fp, 0, ct, cf, cfp)
+            if strict or not lazy:
+                fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, ta, m, inv_s2, norm,
+                                       scratch, st_f, st_fp, cur, ct, cf, cfp)
+                _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, tb, m, inv_s2, norm,
+                                    scratch, st_f, st_fp, 0, ct, cf, cfp)
+            else:
+                settled, ne = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, cur, 0, mstat,
+                                        cache)
+                counts[0] += ne
+                if settled:
+                    continue   # no crossing on the piece
+                # an ambiguous piece is walked from the exact values at its ends
+                fcur, ne1 = complete_row(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, rows, cur, cache)
+                _, ne2 = complete_row(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, rows, 0, cache)
             counts[0] += ne1 + ne2
             tcur = ta
             st_t[0] = tb
@@ -346,7 +368,7 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
                 te = st_t[p]
                 fe, d0, d1 = piece_ends(st_f, st_fp, cur, p, ns)
                 lo, hi, mono = piece_bounds(hrec, sarr, ns, st_f, st_fp, cur, p, tcur, te, strict)
-                pad = 1e-10 * (1.0 + abs(hi))
+                pad = PAD * (1.0 + abs(hi))
                 width = te - tcur
                 tm = tcur + 0.5 * width
                 settle = lo > 1.0 + pad or hi < 1.0 - pad
@@ -408,7 +430,7 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
 
 @parallel_kernel
 def render_buckets(buckets, nbx, B, W, H, offsets, ids, seg, boxes2d, cam, n, sigma, norm, kmax,
-                   tol, strict, bisect, cut_support, keep_roots, shade, cap, rgba, count, ray_nroot, roots, stats):
+                   tol, strict, bisect, cut_support, lazy, keep_roots, shade, cap, rgba, count, ray_nroot, roots, stats):
     """Render the pixels of the given buckets in parallel (one bucket per task).
 
     Parameters
@@ -439,6 +461,8 @@ def render_buckets(buckets, nbx, B, W, H, offsets, ids, seg, boxes2d, cam, n, si
         i1 = offsets[bidx + 1]
         nl = max(i1 - i0, 1)
         scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = walk_buffers(nl, MAX_STACK)
+        st_fh = np.empty_like(st_f)
+        mstat = np.empty(nl, dtype=np.int64)
         rgb = np.empty(3)
         out4 = np.empty(4)
         counts = np.zeros(5, dtype=np.int64)
@@ -455,7 +479,7 @@ def render_buckets(buckets, nbx, B, W, H, offsets, ids, seg, boxes2d, cam, n, si
                 nr = render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, strict,
                                 bisect, cut_support, keep_roots, shade, scratch, hprim, hrec, order, bps, sarr,
                                 st_t, st_f, st_fp, ct, cf, cfp, rgb, roots[q, used:], cap - used,
-                                out4, counts)
+                                out4, counts, st_fh, mstat, lazy)
                 if nr < 0:
                     status = ROOTS_FULL
                     continue

@@ -30,8 +30,9 @@ from numba import prange
 
 from .._jit import kernel, parallel_kernel
 from .field import segment_eval
-from .rays import (eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits, sort_unique,
-                   walk_buffers)
+from .lazy import lazy_ends, settle, split_lazy
+from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds_iv, piece_ends, sort_hits,
+                   sort_unique, walk_buffers)
 from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, lipschitz, ray_support
 
 OK = 0
@@ -119,8 +120,8 @@ def _cluster_field(seg, hprim, hrec, order, a, b, px, py, z, m, inv_s2, norm, sc
 
 
 @kernel
-def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict, cut_support,
-                       scratch, hprim, hrec, order, bps, sarr, st_f, st_fp,
+def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict, cut_support, lazy,
+                       scratch, hprim, hrec, order, bps, sarr, st_f, st_fh, st_fp, mstat,
                        st_kind, st_t, st_k0, st_k1, ct, cf, cfp, rk0, rk1, cap, spans, span_tol, cz, xcap):
     """Classify the K voxel centres of one ray (interval method).
 
@@ -132,6 +133,10 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     increasing order; the ray is outside below the first one, and they
     alternate entry / exit. A ray inside at the grid's bottom (or top)
     gets a crossing exactly there.
+
+    With ``lazy`` (and neither spans nor ``strict``), the walk is lazy
+    (:func:`slicer._kernels.lazy.split_lazy`): ``st_f`` / ``st_fh`` hold
+    per-primitive lower / upper bounds, equal where the value is known.
 
     Returns
     -------
@@ -147,6 +152,12 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     inv_s2 = 1.0 / (sigma * sigma)
     zlo = z0 - 0.5 * h
     zhi = z0 + (K - 0.5) * h
+    lazy = lazy and not spans and not strict
+    ray = (px, py, 0.0, 0.0, 0.0, 1.0)
+    kp = (m, inv_s2, norm)
+    rows = (st_f, st_fh, st_fp)
+    fh = st_fh if lazy else st_f     # eager: every bound is a value
+    cache = (ct, cf, cfp)
     cur = st_f.shape[0] - 1     # row of the values at the current point (stack slots below it)
     nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
     for r in range(nh):
@@ -200,14 +211,23 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                         sarr[ns] = r
                         ns += 1
                         fmax += hrec[r, H_FMAX]
-                if ns == 0 or fmax < 1.0 - 1e-10 * (1.0 + fmax):
+                if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
                     # the primitives' bounds on the whole ray already exclude 1
                     continue
-                fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ta, m, inv_s2,
-                                       norm, scratch, st_f, st_fp, cur, ct, cf, cfp)
-                _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, tb, m, inv_s2,
-                                    norm, scratch, st_f, st_fp, 0, ct, cf, cfp)
-                nev += ne1 + ne2
+                if lazy:
+                    # the ends' values only as far as the piece's verdict needs them
+                    _, ne1 = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, cur, 0, mstat,
+                                       cache)
+                    nev += ne1
+                    fcur = 0.0
+                    for s in range(ns):
+                        fcur += st_f[cur, s]
+                else:
+                    fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ta, m,
+                                           inv_s2, norm, scratch, st_f, st_fp, cur, ct, cf, cfp)
+                    _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, tb, m, inv_s2,
+                                        norm, scratch, st_f, st_fp, 0, ct, cf, cfp)
+                    nev += ne1 + ne2
                 if spans and (fcur >= 1.0) != inside:
                     # only after a skipped stretch (below the grid): enter here
                     if nx >= xcap:
@@ -236,9 +256,9 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     if q1 < q0 and not spans:
                         done = True
                     else:
-                        lo, hi, mono = piece_bounds(hrec, sarr, ns, st_f, st_fp, cur, p,
-                                                     tcur, e_t, strict)
-                        pad = 1e-10 * (1.0 + abs(hi))
+                        lo, hi, mono = piece_bounds_iv(hrec, sarr, ns, st_f, fh, st_fp, cur, p,
+                                                       tcur, e_t, strict, mstat)
+                        pad = PAD * (1.0 + abs(hi))
                         if lo > 1.0 + pad:
                             nrun = _emit(q0, q1, True, rk0, rk1, nrun, cap)
                             done = True
@@ -275,8 +295,14 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                                 sp = p + 2
                                 continue
                         elif z0 + q0 * h == tcur:
-                            # the first centre sits on the left end: its value is known
-                            nrun = _emit(q0, q0, fcur >= 1.0, rk0, rk1, nrun, cap)
+                            # the first centre sits on the left end: its value is known (lazy: as
+                            # far as its class needs)
+                            in0 = fcur >= 1.0
+                            if lazy:
+                                in0, ne1 = settle(seg, hprim, hrec, sarr, ns, ray, tcur, kp, scratch, rows, cur,
+                                                  mstat, cur, p, False, cache)
+                                nev += ne1
+                            nrun = _emit(q0, q0, in0, rk0, rk1, nrun, cap)
                             st_k0[p] = q0 + 1
                             sp += 1
                             if nrun < 0:
@@ -301,6 +327,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             inside = not inside
                         for s in range(ns):
                             st_f[cur, s] = st_f[p, s]
+                            st_fh[cur, s] = st_fh[p, s]
                             st_fp[cur, s] = st_fp[p, s]
                         fcur = fe
                         tcur = e_t
@@ -321,12 +348,17 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                         return -1, nev, nx
                     # right part keeps slot p (its right-end data are already there)
                     st_k0[p] = km + 1
-                    fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, zm, m, inv_s2,
-                                         norm, scratch, st_f, st_fp, p + 2, ct, cf, cfp)
+                    if lazy:
+                        inm, ne1 = split_lazy(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, rows, cur, p, p + 2,
+                                              mstat, cache)
+                    else:
+                        fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, zm, m,
+                                             inv_s2, norm, scratch, st_f, st_fp, p + 2, ct, cf, cfp)
+                        inm = fm >= 1.0
                     nev += ne1
                     st_kind[p + 1] = 1
                     st_k0[p + 1] = km
-                    st_k1[p + 1] = 1 if fm >= 1.0 else 0
+                    st_k1[p + 1] = 1 if inm else 0
                     st_kind[p + 2] = 0
                     st_t[p + 2] = zm
                     st_k0[p + 2] = q0
@@ -445,7 +477,7 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
 
 @parallel_kernel
 def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
-                  x0, y0, pxs, pys, z0, h, K, n, sigma, norm, kmax, strict, cut_support, max_list,
+                  x0, y0, pxs, pys, z0, h, K, n, sigma, norm, kmax, strict, cut_support, lazy, max_list,
                   cap, ray_nrun, run_k0, run_k1, stats, spans, span_tol, xcap, ray_nx, cross_z):
     """Trace every ray of the given buckets in parallel.
 
@@ -478,6 +510,9 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
         Runs of all the bucket's rays, ray after ray.
     stats : (nb, 2) int64, out
         [status, primitive evaluations] per bucket.
+    lazy : bool
+        Interval method: the lazy walk (docs/math.md §5.5; same voxels,
+        fewer evaluations).
     spans : bool
         Interval method: also locate every crossing to ``span_tol`` (mm).
     xcap : int
@@ -496,6 +531,8 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
         i1 = bucket_off[bidx + 1]
         nl = max(i1 - i0, 1)
         scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = walk_buffers(nl, MAX_STACK)
+        st_fh = np.empty_like(st_f)
+        mstat = np.empty(nl, dtype=np.int64)
         st_kind = np.empty(MAX_STACK, dtype=np.int64)
         st_k0 = np.empty(MAX_STACK, dtype=np.int64)
         st_k1 = np.empty(MAX_STACK, dtype=np.int64)
@@ -521,8 +558,9 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                 nx = 0
                 if method == 0:
                     nr, ne, nx = trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
-                                                    kmax, strict, cut_support, scratch, hprim, hrec, order, bps,
-                                                    sarr, st_f, st_fp, st_kind, st_t, st_k0,
+                                                    kmax, strict, cut_support, lazy, scratch, hprim, hrec, order,
+                                                    bps,
+                                                    sarr, st_f, st_fh, st_fp, mstat, st_kind, st_t, st_k0,
                                                     st_k1, ct, cf, cfp, rk0, rk1, room, spans, span_tol,
                                                     cross_z[q, xused:], xcap - xused)
                 elif method == 1:
