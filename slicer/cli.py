@@ -59,6 +59,28 @@ class _Group(click.Group):
             except SkelsliceError as exc:
                 click.echo(f"error: {exc}", err=True)
                 sys.exit(2)
+            except Exception as exc:
+                interrupt = _interruption(exc)
+                if interrupt is None:
+                    raise
+                raise interrupt from None
+
+
+def _interruption(exc: BaseException) -> BaseException | None:
+    """The SIGTERM exit or Ctrl-C behind ``exc``, if any.
+
+    A signal that arrives while compiled code calls back into Python (Numba's
+    dispatcher) surfaces as a :class:`SystemError` whose cause is the
+    handler's :class:`SystemExit` (or the :class:`KeyboardInterrupt`); the
+    abort paths have run by then, so the command ends as the signal asked.
+    """
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, (SystemExit, KeyboardInterrupt)):
+            return exc
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

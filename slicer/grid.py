@@ -6,11 +6,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .checks import fmt_num, positive_number
+from .checks import MAX_CELLS, RESOLUTION_RATIO, fmt_num, positive_number
 from .errors import GridError
 
 #: refuse jobs larger than this many voxels before any work starts
-MAX_VOXELS = 10**12
+MAX_VOXELS = MAX_CELLS
 
 
 @dataclass(frozen=True)
@@ -77,10 +77,9 @@ def _positive(name: str, value) -> float:
     return positive_number(value, name, GridError)
 
 
-#: coordinates may be at most this many times the smallest grid step: float64 then keeps
-#: about 7 significant digits below the step (eps x 1e9 = 1.1e-7), which the tracer's
-#: exact classification of voxel centres and the span tolerances rely on (docs/cli.md)
-MAX_RESOLUTION_RATIO = 1e9
+#: coordinates may be at most this many times the smallest grid step
+#: (:data:`slicer.checks.RESOLUTION_RATIO`, docs/scene-format.md "Limits")
+MAX_RESOLUTION_RATIO = RESOLUTION_RATIO
 
 
 def _check_resolution(lo, hi, steps, what: str) -> None:

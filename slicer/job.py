@@ -18,6 +18,7 @@ from formats.estimate import print_estimate
 from ._version import __version__
 from .antialias import output_layers
 from .atomic import check_destination
+from .checks import resolvable, scene_reach
 from .contours import check_resolvable, write_contours
 from .errors import GridError, OutputError
 from .executors import executor_info as describe_executor
@@ -94,6 +95,8 @@ def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: boo
     if out_opts.contours is not None:                      # ``--contours FILE`` beside the images
         check_destination(Path(out_opts.contours), out_opts.force)
     resolved = job.resolve(out)
+    if out_opts.contours is not None or getattr(WRITERS[resolved.fmt], "kind", "image") == "contours":
+        resolvable(out_opts.contour_tol, "--contour-tol", scene_reach(skel))
     if isinstance(skel, Part) and not skel.has_meshes:     # a lattice alone: the lattice's own path
         skel = skel.skeleton
     # a contour tolerance float64 cannot resolve at the scene's coordinates: refused before any work

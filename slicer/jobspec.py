@@ -26,7 +26,7 @@ from formats.printers import PRINTERS, Printer, PrintSettings, get_printer
 
 from .antialias import check_aa, is_exact
 from .blend import require_sum, require_traceable
-from .checks import fmt_num, integer, positive_number, vector
+from .checks import MAX_COUNT, coordinates, fmt_num, integer, magnitude
 from .errors import OptionError
 from .slicing import METHODS
 from .tileplan import parse_size
@@ -273,7 +273,7 @@ class SliceJob:
             raise OptionError(f"the {name} format needs --printer NAME; choose one of "
                               f"{', '.join(sorted(PRINTERS))}")
         aa, gamma = check_aa(p.aa, p.gamma)
-        positive_number(self.output.contour_tol, "--contour-tol")
+        magnitude(self.output.contour_tol, "--contour-tol", positive=True)
         if prn is None and p.at is not None:
             raise OptionError("--at needs --printer (it places the model on a printer's plate)")
         px, py, h = _pitch(g, prn)
@@ -318,12 +318,12 @@ def _normalise(name: str, value):
 
 
 def _default(value, name: str, default: float) -> float:
-    return default if value is None else positive_number(value, name)
+    return default if value is None else magnitude(value, name, positive=True, unit="s")
 
 
 def _plate_point(at, prn: Printer | None) -> tuple[float, float]:
     """``--at X Y``: two finite numbers on the printer's plate (mm)."""
-    x, y = vector(at, 2, "--at")
+    x, y = coordinates(at, 2, "--at")
     if prn is not None:
         W, H = prn.display
         if not (0.0 <= x <= W and 0.0 <= y <= H):
@@ -336,9 +336,9 @@ def _check_trace(t: TraceOptions) -> None:
     if t.method not in METHODS:
         raise OptionError(f"unknown method {t.method!r}; choose one of {', '.join(sorted(METHODS))}")
     require_traceable(t.blend, method=t.method)
-    integer(t.bucket, "--bucket", lo=0)
+    integer(t.bucket, "--bucket", lo=0, hi=MAX_COUNT)
     if t.threads is not None:
-        integer(t.threads, "--threads", lo=1)
+        integer(t.threads, "--threads", lo=1, hi=MAX_COUNT)
 
 
 def _pitch(g: GridOptions, prn: Printer | None) -> tuple[float, float, float]:
@@ -351,14 +351,20 @@ def _pitch(g: GridOptions, prn: Printer | None) -> tuple[float, float, float]:
             raise OptionError("--bounds cannot be combined with a printer: the model is placed on the plate "
                               "(use --at X Y)")
         px, py = prn.pixel_size
-        h = positive_number(g.layer_height, "layer height") if g.layer_height is not None else prn.layer_height
+        h = _size(g.layer_height, "layer height") if g.layer_height is not None else prn.layer_height
         return px, py, h
     if g.pixel_size is None:
         raise OptionError("--pixel-size is required without --printer")
-    px = positive_number(g.pixel_size, "pixel size")
-    py = positive_number(g.pixel_size_y, "pixel size y") if g.pixel_size_y is not None else px
-    h = positive_number(g.layer_height, "layer height") if g.layer_height is not None else px
+    px = _size(g.pixel_size, "pixel size")
+    py = _size(g.pixel_size_y, "pixel size y") if g.pixel_size_y is not None else px
+    h = _size(g.layer_height, "layer height") if g.layer_height is not None else px
+    if g.bounds is not None:
+        coordinates(g.bounds, 6, "--bounds")
     return px, py, h
+
+
+def _size(value, name: str) -> float:
+    return magnitude(value, name, positive=True)
 
 
 __all__ = ["SliceJob", "GridOptions", "TraceOptions", "PrintOptions", "OutputOptions", "ScaleOptions",

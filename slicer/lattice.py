@@ -19,7 +19,7 @@ from typing import Callable
 
 import numpy as np
 
-from .checks import positive_number
+from .checks import positive_number, scene_numbers
 from .errors import SceneError
 from .skeleton import DEFAULT_DEGREE, DEFAULT_SIGMA, Skeleton
 
@@ -378,6 +378,9 @@ def generate_lattice(cell_type: str, cells, cell_size, radius: float | None,
                              f"(node bounds {nodes.min(axis=0).tolist()} .. {nodes.max(axis=0).tolist()})")
         nodes, struts = _compact(nodes, struts)
     r = _node_radii(nodes, radius, radius_top, grading_axis, radius_fn)
+    scene_numbers(nodes, r[struts], None,            # origin, cell size and radius within float64's reach
+                  node_entry=lambda i, k: f"the lattice's node {i} {'xyz'[k]} (origin + cells x cell size)",
+                  radius_entry=lambda i, j: f"the radius at node {int(struts[i, j])}")
     return Skeleton(nodes, struts, r[struts], degree, sigma)
 
 

@@ -34,7 +34,7 @@ from ._kernels.launch import launch_until_fits, numba_threads, one_item_per_thre
 from ._kernels.raysupport import kprime_max
 from ._kernels.render import (NSHADE, NSTAT, ROOTS_FULL, ST_CUT, ST_EV_ISOLATE, ST_EV_REFINE, ST_EV_SHADE,
                               ST_EV_SPLIT, ST_ROOTS, ST_STATUS, pixel_rays, render_buckets)
-from .checks import positive_number
+from .checks import MAX_COUNT, coordinates, integer, positive_number, resolvable, scene_reach
 from .field import segment_table
 from .buckets import Buckets, thread_order
 from .errors import GridError
@@ -179,7 +179,7 @@ def _point(v, name: str):
     p = np.asarray(v, dtype=np.float64).reshape(-1)
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         raise GridError(f"{name} must be three finite numbers X Y Z (mm), got {np.asarray(v).tolist()}")
-    return p
+    return np.asarray(coordinates(p, 3, name, GridError))
 
 
 def make_camera(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "ortho",
@@ -322,7 +322,7 @@ def screen_buckets(skel: Skeleton, cam: Camera, size: int = 16) -> ScreenBuckets
     distance from the eye), so rays find their hits nearly sorted.
     """
 
-    B = int(size)
+    B = integer(size, "bucket", GridError, lo=1, hi=MAX_COUNT)
     if isinstance(size, bool) or B < 1:
         raise GridError(f"bucket size must be an integer >= 1 pixel, got {size!r}")
     W, H = cam.width, cam.height
@@ -466,7 +466,7 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
     if tolerance is None:
         tol = TOLERANCE * diag
     else:
-        tol = positive_number(tolerance, "tolerance", GridError)
+        tol = resolvable(tolerance, "tolerance", scene_reach(skel), GridError)
         if tol < 1e-12 * diag:
             raise GridError(f"tolerance {tolerance!r} mm is below 1e-12 of the model size ({diag:.6g} mm)")
     bk = screen_buckets(skel, cam, bucket)

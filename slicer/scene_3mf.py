@@ -77,6 +77,7 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 
+from .checks import scene_numbers
 from .errors import SceneError
 from .meshes import Mesh, make_mesh
 from .skeleton import Skeleton
@@ -193,9 +194,11 @@ def read_3mf(path, repair: bool = False) -> ThreeMF:
             segs.append(s + offset)
             radii.append(r)
             offset += len(p)
+        nodes_mm, radii_mm = np.concatenate(nodes) * scale, np.concatenate(radii) * scale
+        node_entry, radius_entry = _entries(walk.beam_labels)
+        scene_numbers(nodes_mm, radii_mm, src, node_entry=node_entry, radius_entry=radius_entry)
         try:
-            out.lattice = Skeleton(np.concatenate(nodes) * scale, np.concatenate(segs),
-                                   np.concatenate(radii) * scale, source=src)
+            out.lattice = Skeleton(nodes_mm, np.concatenate(segs), radii_mm, source=src)
         except SceneError as exc:
             raise SceneError(f"after placement: {exc.detail}", src) from None
     if len(walk.clipped) > 1:
@@ -211,6 +214,25 @@ def read_3mf(path, repair: bool = False) -> ThreeMF:
     if out.lattice is None and not out.solids:
         raise SceneError("nothing to print: the build has no beam lattice and no triangle mesh", src)
     return out
+
+
+def _entries(labels: list):
+    """Names of a placed lattice's coordinates and radii in the file (for :func:`scene_numbers`):
+    ``build item 0, object 1 'lattice': vertex 7 x (placed, mm)`` and ``... beam 3 r2``."""
+    node_start = np.cumsum([0] + [len(used) for _, used, _ in labels])
+    seg_start = np.cumsum([0] + [len(beams) for _, _, beams in labels])
+
+    def node_entry(i, k):
+        n = int(np.searchsorted(node_start, i, side="right")) - 1
+        where, used, _ = labels[n]
+        return f"{where}: vertex {int(used[i - node_start[n]])} {'xyz'[k]} (placed)"
+
+    def radius_entry(i, j):
+        n = int(np.searchsorted(seg_start, i, side="right")) - 1
+        where, _, beams = labels[n]
+        return f"{where}: beam {int(beams[i - seg_start[n]])} r{j + 1}"
+
+    return node_entry, radius_entry
 
 
 def load_3mf(path, radius: float | None = None) -> Skeleton:
@@ -336,6 +358,8 @@ class _Walk:
     def __init__(self, model, src: str, scale: float, repair: bool):
         self.model, self.src, self.scale, self.repair = model, src, scale, repair
         self.beams: list = []
+        #: per lattice instance: (where, file vertex index of each node, file beam index of each segment)
+        self.beam_labels: list = []
         self.solids: list[Mesh] = []
         self.clips: list[Mesh] = []
         self.clip_mode: str | None = None
@@ -415,6 +439,7 @@ class _Walk:
         used, inverse = np.unique(idx, return_inverse=True)
         pts = verts[used] @ t[:3] + t[3]
         self.beams.append((pts, inverse.reshape(idx.shape), rad * k))
+        self.beam_labels.append((where, used, np.nonzero(keep)[0]))
         cmode, cid = lattice.GetClipping()
         if int(cmode) != 0:
             self.clipped.append(where)

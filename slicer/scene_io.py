@@ -110,6 +110,7 @@ from typing import Any
 import numpy as np
 
 from ._version import __version__
+from .checks import scene_numbers
 from .errors import SceneError
 from .scene_3mf import load_3mf
 from .scene_write import FORMAT_VERSION, SUFFIXES, write_scene
@@ -528,7 +529,18 @@ def _scene_from_json(data, src: str, radius: float | None) -> tuple[Skeleton | N
             raise SceneError(f"radii underflow to 0 when converted from {units} to mm", src)
     if radii_arr is None:
         radii_arr = np.full((m, 2), float(radius))
+    scene_numbers(nodes_arr, radii_arr, src, node_entry=lambda i, k: f"nodes[{i}][{k}]",
+                  radius_entry=_json_radius_entry(seg_arr, seg_radii is not None, node_radii is not None))
     return Skeleton(nodes_arr, seg_arr, radii_arr, degree, sigma, source=src), meshes
+
+
+def _json_radius_entry(seg_arr: np.ndarray, by_segment: bool, by_node: bool):
+    """The name of the radius at end j of segment i in a JSON scene (for :func:`scene_numbers`)."""
+    if by_segment:
+        return lambda i, j: f"segment_radii[{i}][{j}]"
+    if by_node:
+        return lambda i, j: f"radii[{int(seg_arr[i, j])}]"
+    return lambda i, j: "the radius (--radius)"
 
 
 def _mesh_entries(value, units: str, src: str) -> list[MeshEntry]:
@@ -709,7 +721,8 @@ def _skeleton_from_obj(text: str, src: str, radius: float | None) -> Skeleton:
                                  f"(the file has {nv} vertices)", src)
     nodes = np.array(coords, dtype=np.float64).reshape(nv, 3)
     seg_arr = np.array(segs, dtype=np.int64).reshape(-1, 2)
-    length = np.linalg.norm(nodes[seg_arr[:, 1]] - nodes[seg_arr[:, 0]], axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):     # huge coordinates are refused below, by name
+        length = np.linalg.norm(nodes[seg_arr[:, 1]] - nodes[seg_arr[:, 0]], axis=1)
     bad = np.nonzero(~(length > 0))[0]
     if bad.size:
         k = int(bad[0])
@@ -733,6 +746,9 @@ def _skeleton_from_obj(text: str, src: str, radius: float | None) -> Skeleton:
                              "or pass --radius", src)
     default = float(radius) if radius is not None else math.nan
     vr = np.array([default if r is None else r for r in vradius], dtype=np.float64)
+    scene_numbers(nodes, vr[seg_arr], src, node_entry=lambda i, k: f"line {vline[i]}: vertex {i + 1} {'xyz'[k]}",
+                  radius_entry=lambda i, j: (f"line {vline[seg_arr[i, j]]}: vertex {seg_arr[i, j] + 1} radius"
+                                             if vradius[seg_arr[i, j]] is not None else "the radius (--radius)"))
     return Skeleton(nodes, seg_arr, vr[seg_arr], source=src)
 
 

@@ -8,6 +8,11 @@ the ``colain``, ``goo`` and ``msla_format`` crates), built once per session with
 and ``uv3dp-layers``, both on ``github.com/ezrec/uv3dp`` v1.2.12), built once
 per session by ``tests/readers_go/build``.
 
+Hypothesis profiles: ``ci`` (derandomised, no deadline, no example database: the same
+examples on every run) is what the fuzz suite (tests/test_fuzz_cli.py) runs under by default;
+``fuzz-long`` (``--hypothesis-profile=fuzz-long``) draws random examples,
+``fuzz_helpers.LONG_FACTOR`` times as many. The session summary lists how many fuzz cases ran.
+
 Tests that use them skip, naming the reason, where cargo or Go is missing;
 with ``SKELSLICE_REQUIRE_READERS=1`` (set by ``.ci/run``) they fail instead:
 in CI a skipped reader is not a pass.
@@ -21,6 +26,25 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
+
+import fuzz_helpers
+
+_FUZZ = dict(deadline=None, database=None, print_blob=True,
+             suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much])
+settings.register_profile("ci", derandomize=True, **_FUZZ)
+settings.register_profile("fuzz-long", derandomize=False, **_FUZZ)
+
+
+def pytest_terminal_summary(terminalreporter):
+    """How many fuzz cases each command ran (tests/test_fuzz_cli.py)."""
+    runs = fuzz_helpers.RUNS
+    if runs:
+        total = sum(sum(by.values()) for by in runs.values())
+        each = "; ".join(f"{name} {sum(by.values())} (" + ", ".join(f"exit {k}: {v}" for k, v in sorted(by.items()))
+                         + ")" for name, by in sorted(runs.items()))
+        terminalreporter.write_line(f"fuzz cases run: {total}: {each}")
+
 
 READERS = Path(__file__).resolve().parent / "readers"
 READERS_GO = Path(__file__).resolve().parent / "readers_go"

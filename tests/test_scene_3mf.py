@@ -172,6 +172,21 @@ def test_bad_beam_data_named(tmp_path, beams, attrs, needle):
     assert msg.startswith(f"{path}: /3D/3dmodel.model, object 1 'strut'") and needle in msg, msg
 
 
+@pytest.mark.parametrize("beams,needle", [
+    ('<b:beam v1="0" v2="1" r1="1e-20"/><b:beam v1="1" v2="2"/>',
+     "build item 0, object 1 'strut': beam 0 r1 = 1e-19 mm is below the smallest supported radius 1e-09 mm"),
+    ('<b:beam v1="0" v2="1"/><b:beam v1="1" v2="2" r2="2e8"/>',          # centimetres: 2e9 mm
+     "build item 0, object 1 'strut': beam 1 r2 = 2e+09 mm is beyond the supported magnitude 1e+09 mm"),
+])
+def test_numbers_float64_cannot_resolve_are_named(tmp_path, beams, needle):
+    """docs/scene-format.md "Limits", checked on the placed lattice and named by build item, object,
+    beam and end."""
+    path = hand_3mf(tmp_path / "bad.3mf", beams)
+    with pytest.raises(SceneError) as e:
+        load_scene(path)
+    assert str(e.value).startswith(f"{path}: ") and needle in str(e.value), str(e.value)
+
+
 def test_no_beam_lattice(tmp_path):
     path = hand_3mf(tmp_path / "mesh.3mf", "", lattice=False)
     with pytest.raises(SceneError, match=r"mesh\.3mf: no beam lattice"):

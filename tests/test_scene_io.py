@@ -377,8 +377,10 @@ def test_json_round_trip_is_bit_exact(seed, tmp_path):
 
 
 def test_json_round_trip_awkward_floats(tmp_path):
-    nodes = [[0.1 + 0.2, 1 / 3, -0.0], [5e-324, 1e150, -1.2345678901234567e150], [2.0 ** -1074 * 3, 1e-300, 7.0]]
-    s = Skeleton(nodes, [[0, 1], [1, 2]], [[5e-324, 1e140], [1 / 7, 2.0 ** 0.5]], 4, 1.0000000000000002)
+    # the awkward floats within the scene limits (docs/scene-format.md, "Limits"): subnormal and
+    # signed-zero coordinates, 17-digit values, the largest coordinate and radius magnitude
+    nodes = [[0.1 + 0.2, 1 / 3, -0.0], [5e-324, 1e8, -1.2345678901234567e8], [2.0 ** -1074 * 3, 1e-300, 7.0]]
+    s = Skeleton(nodes, [[0, 1], [1, 2]], [[1.0000000000000002, 1e9], [1 / 7, 2.0 ** 0.5]], 4, 1.0000000000000002)
     p = tmp_path / "s.json"
     s.save(p)
     assert_same(s, load_scene(p))
@@ -542,3 +544,47 @@ def test_fuzz_structured_json(tmp_path, data):
 def test_fuzz_obj_statements(tmp_path, lines, radius):
     text = "\n".join(" ".join([k, *args]) for k, args in lines)
     _load_or_scene_error(tmp_path / "tokens.obj", text, radius)
+
+
+# ----------------------------------------------------------------------------- float64 limits
+_LIMIT_CASES = [
+    ('{"skelslice": 1, "units": "m", "nodes": [[0, 0, 0], [0, 0, 1e7]], "segments": [[0, 1]], "radii": [1, 1]}',
+     ".json", "nodes[1][2] = 1e+10 mm is beyond the supported magnitude 1e+09 mm"),
+    ('{"skelslice": 1, "units": "mm", "nodes": [[0, 0, 0], [0, 0, 1]], "segments": [[0, 1]], '
+     '"segment_radii": [[1, 5e-324]]}', ".json", "segment_radii[0][1] = 5e-324 mm is below the smallest supported "
+                                                  "radius 1e-09 mm"),
+    ('{"skelslice": 1, "units": "mm", "nodes": [[0, 0, 0], [0, 0, 1], [0, 0, 2]], "segments": [[0, 1], [1, 2]], '
+     '"radii": [1, 1, 1e12]}', ".json", "radii[2] = 1e+12 mm is beyond"),
+    ("v 0 0 0 1e-6\nv 1e5 0 0 1\nl 1 2\n", ".obj",
+     "line 2: vertex 2 x = 100000.0 mm is more than 1e+09 times the smallest radius (line 1: vertex 1 radius = "
+     "1e-06 mm)"),
+    ("v 0 0 0 1\nv 1e308 0 0 1\nl 1 2\n", ".obj", "line 2: vertex 2 x = 1e+308 mm is beyond"),
+]
+
+
+@pytest.mark.parametrize("text,suffix,needle", _LIMIT_CASES)
+def test_numbers_float64_cannot_resolve_are_refused_by_name(text, suffix, needle, tmp_path):
+    """docs/scene-format.md "Limits": the entry, its value (as people write it) and the limit."""
+    p = tmp_path / f"s{suffix}"
+    p.write_text(text)
+    with pytest.raises(SceneError) as exc:
+        load_scene(p)
+    assert needle in str(exc.value) and str(p) in str(exc.value), str(exc.value)
+    assert len(str(exc.value)) < 400
+
+
+def test_numbers_at_the_limits_are_read(tmp_path):
+    """Coordinates of 1e9 mm with a 1 mm strut, radii of 1e-9 mm near the origin, subnormal and
+    signed-zero coordinates: inside the limits, read exactly."""
+    p = tmp_path / "s.json"
+    p.write_text('{"skelslice": 1, "units": "mm", "nodes": [[1e9, 0, 0], [1e9, 0, 5], [-0.0, 5e-324, 0], '
+                 '[0, 0, 1e-6]], "segments": [[0, 1], [2, 3]], "segment_radii": [[1, 1], [1e-9, 1e-9]]}')
+    with pytest.raises(SceneError, match="more than 1e\\+09 times the smallest radius"):
+        load_scene(p)                    # 1e9 mm is 1e18 times the 1e-9 mm strut
+    p.write_text('{"skelslice": 1, "units": "mm", "nodes": [[1e9, 0, 0], [1e9, 0, 5]], "segments": [[0, 1]], '
+                 '"radii": [1, 1]}')
+    assert load_scene(p).nodes[0, 0] == 1e9
+    p.write_text('{"skelslice": 1, "units": "mm", "nodes": [[-0.0, 5e-324, 0], [0, 0, 1e-6]], "segments": [[0, 1]], '
+                 '"radii": [1e-9, 1e-9]}')
+    s = load_scene(p)
+    assert s.nodes[0, 1] == 5e-324 and s.radii.min() == 1e-9

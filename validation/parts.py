@@ -29,7 +29,7 @@ import manifold3d
 import numpy as np
 import shapely
 
-from slicer.checks import positive_number
+from slicer.checks import resolvable, scene_reach, scene_step
 from slicer.contours import layer_mask, part_layer_contours, rings_to_multipolygon
 from slicer.errors import GridError
 from slicer.field import evaluate
@@ -131,7 +131,9 @@ def validate_part(part, *, pixel_size: float | None = None, pixels: int = 512, p
     Parameters and result as :func:`validation.validate.validate` (with
     ``part`` a :class:`slicer.parts.Part`).
     """
-    tol = positive_number(tol, "contour tolerance", GridError)
+    tol = resolvable(tol, "contour tolerance", scene_reach(part), GridError)
+    if mesh_edge is not None:                           # before any work
+        scene_step(mesh_edge, "mesh edge", part, GridError)
     if pixel_size is None:
         if int(pixels) < 2:
             raise GridError(f"pixels must be >= 2, got {pixels}")
@@ -143,7 +145,8 @@ def validate_part(part, *, pixel_size: float | None = None, pixels: int = 512, p
     t_slice = time.perf_counter() - t0
     g = res.grid
     px, py = g.pixel_size
-    edge = positive_number(float(mesh_edge) if mesh_edge is not None else 0.5 * min(px, py), "mesh edge", GridError)
+    edge = scene_step(float(mesh_edge) if mesh_edge is not None else 0.5 * min(px, py), "mesh edge", part,
+                      GridError)
     roles = {role: _union([_manifold(m) for m in part.of_role(role)]) for role in ROLES}
     sections = {role: Sections(part.of_role(role)) for role in ROLES if part.of_role(role)}
     ks = pick_layers(res, int(layers_checked))

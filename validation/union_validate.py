@@ -28,7 +28,7 @@ import manifold3d
 import numpy as np
 import shapely
 
-from slicer.checks import positive_number
+from slicer.checks import resolvable, scene_reach, scene_step
 from slicer.contours import layer_contours, layer_mask, rings_to_multipolygon
 from slicer.errors import GridError
 from slicer.field import evaluate
@@ -164,15 +164,17 @@ def validate_union(skel: Skeleton, *, pixel_size=None, pixels: int = 512, pixel_
                    mesh_edge=None, layers_checked: int = 8, tol: float = 1e-3, max_hausdorff=None, min_iou=None,
                    progress=None) -> dict:
     """:func:`validation.validate.validate` for ``blend="union"`` (module docstring); same report layout."""
-    tol = positive_number(tol, "contour tolerance", GridError)
+    tol = resolvable(tol, "contour tolerance", scene_reach(skel), GridError)
+    if mesh_edge is not None:                           # before any work
+        scene_step(mesh_edge, "mesh edge", skel, GridError)
     pixel_size, bounds = default_pitch(skel, pixel_size, pixels, bounds)
     t0 = time.perf_counter()
     res = slice_skeleton(skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict,
                          blend="union")
     t_slice = time.perf_counter() - t0
     g = res.grid
-    edge = positive_number(float(mesh_edge) if mesh_edge is not None else 0.5 * min(g.pixel_size), "mesh edge",
-                           GridError)
+    edge = scene_step(float(mesh_edge) if mesh_edge is not None else 0.5 * min(g.pixel_size), "mesh edge", skel,
+                      GridError)
     rows, sections, ours_all = [], [], []
     t_ref = t_cmp = 0.0
     for k in pick_layers(res, int(layers_checked)):

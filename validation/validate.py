@@ -25,9 +25,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, ImageDraw
 
 from slicer.atomic import AtomicDir, check_destination
-from slicer.checks import positive_number
+from slicer.checks import resolvable, scene_reach, scene_step
 from slicer.contours import layer_contours, layer_mask
 from slicer.errors import GridError
 from slicer.slicing import slice_skeleton
@@ -101,7 +102,9 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
         ``checks`` (name -> bool), ``passed``, ``timings``; ``_sections`` and
         ``_result`` hold the objects the report images are drawn from.
     """
-    tol = positive_number(tol, "contour tolerance", GridError)
+    tol = resolvable(tol, "contour tolerance", scene_reach(skel), GridError)
+    if mesh_edge is not None:                           # before any work
+        scene_step(mesh_edge, "mesh edge", skel, GridError)
     pixel_size, bounds = default_pitch(skel, pixel_size, pixels, bounds)
     t0 = time.perf_counter()
     res = slice_skeleton(skel, pixel_size, pixel_size_y, layer_height, bounds, method, bucket, threads, strict,
@@ -110,7 +113,7 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
     g = res.grid
     px, py = g.pixel_size
     edge = float(mesh_edge) if mesh_edge is not None else 0.5 * min(px, py)
-    edge = positive_number(edge, "mesh edge", GridError)
+    edge = scene_step(edge, "mesh edge", skel, GridError)
     ks = pick_layers(res, int(layers_checked))
     zs = [g.origin[2] + k * g.layer_height for k in ks]
     t1 = time.perf_counter()
@@ -194,7 +197,6 @@ def overlay_image(mask: np.ndarray, ref_rings: list[np.ndarray], ref_raster: np.
                   pixel_size, max_side: int = 1024):
     """A PIL image: our raster in grey, pixels only we have in red, pixels only
     the reference has in blue, the reference outline in green."""
-    from PIL import Image, ImageDraw
 
     H, W = mask.shape
     scale = max(1, min(8, max_side // max(H, W)))

@@ -6,10 +6,12 @@ first form of this command) keep working: the flags select the subcommand.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import click
 
+from sample_lattices import SAMPLES
 from validation.bench import format_table as table1_table
 from validation.bench import table1
 from validation.bulge import bulge
@@ -51,6 +53,9 @@ def _bench_parts(model, quick, repeat, threads):
     return res, None
 
 
+#: suffixes the error plot can be written as
+PLOT_SUFFIXES = (".png", ".svg", ".pdf")
+
 #: benchmark name -> runner(model, quick, repeat, threads) -> (results, plotter or None)
 BENCHMARKS = {"error": _bench_error, "table1": _bench_table1, "bulge": _bench_bulge, "parts": _bench_parts}
 
@@ -79,8 +84,19 @@ def run_benchmark(which, model, quick, repeat, threads, json_path, plot_path=Non
     if plot_path is not None:
         if which != "error":
             raise OptionError("--plot is only available with the error benchmark")
+        if Path(plot_path).suffix.lower() not in PLOT_SUFFIXES:
+            raise OptionError(f"--plot {plot_path}: the plot is written as {', '.join(PLOT_SUFFIXES)} "
+                              f"(from the suffix), got {Path(plot_path).suffix or 'no suffix'}")
+        if json_path is not None and Path(json_path).resolve() == Path(plot_path).resolve():
+            raise OptionError(f"--json and --plot are the same file {json_path}")
         require("matplotlib", "plot", "--plot")
+    if model is not None and model not in SAMPLES:
+        raise OptionError(f"unknown --model {model!r}; choose one of {', '.join(sorted(SAMPLES))}")
+    if model is not None and which in ("bulge", "parts"):
+        raise OptionError(f"--model does not apply to the {which} benchmark (it builds its own scenes)")
     for p in (json_path, plot_path):
+        if p is not None and (str(p).endswith(("/", os.sep)) or Path(p).is_dir()):
+            raise OutputError(f"{p}: a folder; give a file name")
         if p is not None and not Path(p).resolve().parent.is_dir():
             raise OutputError(f"{p}: the folder {Path(p).parent} does not exist")
     res, plotter = BENCHMARKS[which](model, quick, repeat, threads)
@@ -97,12 +113,12 @@ def run_benchmark(which, model, quick, repeat, threads, json_path, plot_path=Non
 
 
 @click.group("bench", invoke_without_command=True)
-@click.option("--error", "which", flag_value="error", help="Same as `bench error`.")
-@click.option("--table1", "which", flag_value="table1", help="Same as `bench table1`.")
+@click.option("--error", "error_flag", is_flag=True, help="Same as `bench error`.")
+@click.option("--table1", "table1_flag", is_flag=True, help="Same as `bench table1`.")
 @_common
 @_plot_option
 @click.pass_context
-def command(ctx, which, **options):
+def command(ctx, error_flag, table1_flag, **options):
     """Run a benchmark and print its table; timings depend on the machine and its load.
 
     \b
@@ -111,6 +127,9 @@ def command(ctx, which, **options):
     skelslice bench bulge [--quick]
     skelslice bench parts [--quick] [--repeat N]
     """
+    if error_flag and table1_flag:
+        raise OptionError("give one of --error and --table1, not both")
+    which = "error" if error_flag else "table1" if table1_flag else None
     if ctx.invoked_subcommand is not None:
         if which is not None:
             raise OptionError(f"give either --{which} or the `{ctx.invoked_subcommand}` subcommand, not both")

@@ -6,10 +6,15 @@ import json
 import click
 import numpy as np
 
+from ..checks import fmt_num
+from ..errors import GridError
+from ..grid import MAX_VOXELS, make_grid
 from .options import blend_option, load_part_from, part_options, positive
 
 #: an isolated segment shorter than this times its mean radius has no surface (docs/math.md §1.5)
 MIN_ISOLATED_LENGTH = 0.688
+#: image size of a default ``render`` (the "nothing visible" warning)
+RENDER_SIZE = 700
 #: how many offending segment/node indices a warning lists
 _LISTED = 10
 
@@ -89,7 +94,41 @@ def scene_stats(skel, pixel_size: float | None = None, blend: str = "sum") -> di
                   f"the field counts them twice")
     add("unused_nodes", degree == 0,
         lambda k: f"{k} node{_s(k)} not used by any segment", what="nodes")
+    warn.extend(_degenerate(skel, pixel_size))
     return stats
+
+
+def _degenerate(skel, pixel_size: float | None) -> list[dict]:
+    """Warnings about scenes that cannot be printed or seen as a whole: an extent far beyond the
+    thinnest strut, struts all far below the pixel, a grid the slicer would refuse, and a default
+    render in which no strut is as wide as a pixel."""
+    out = []
+    box = skel.support_bounds()
+    span = np.ptp(box, axis=0)
+    rmin, rmax = float(skel.radii.min()), float(skel.radii.max())
+    cells = float(np.prod(np.floor(span / (2.0 * rmin)) + 1.0))
+    if cells > MAX_VOXELS:
+        out.append({"kind": "extreme_extent", "count": 1, "message":
+                    f"extreme extent: the scene spans {fmt_num(float(span.max()))} mm, "
+                    f"{fmt_num(float(span.max()) / rmin)} times its thinnest radius {fmt_num(rmin)} mm; a grid fine "
+                    f"enough for that strut (pixel {fmt_num(2 * rmin)} mm) would have {cells:.3g} voxels "
+                    f"(limit {MAX_VOXELS:.0e})"})
+    if pixel_size is not None:
+        if rmax < pixel_size / 2:
+            out.append({"kind": "all_thin", "count": 1, "message":
+                        f"every strut is thinner than a pixel (largest radius {fmt_num(rmax)} mm < half the pixel "
+                        f"size {fmt_num(pixel_size)} mm): the layers may show nothing at all"})
+        try:
+            make_grid(box, pixel_size)
+        except GridError as exc:
+            out.append({"kind": "grid", "count": 1, "message": f"slicing at pixel size {fmt_num(pixel_size)} mm "
+                                                               f"would be refused: {exc}"})
+    pixel = float(span.max()) / RENDER_SIZE
+    if rmax < pixel / 2:
+        out.append({"kind": "render_empty", "count": 1, "message":
+                    f"nothing visible in a default render: a {RENDER_SIZE}-pixel image of the whole scene has "
+                    f"{fmt_num(pixel)} mm pixels, more than twice the largest radius {fmt_num(rmax)} mm"})
+    return out
 
 
 def part_stats(part, pixel_size: float | None = None, blend: str = "sum") -> dict:

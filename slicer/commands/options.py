@@ -11,7 +11,7 @@ from __future__ import annotations
 import click
 
 from ..blend import BLENDS
-from ..checks import positive_number
+from ..checks import magnitude
 from ..errors import OptionError
 from ..jobspec import OPTIONS, SliceJob
 from ..parts import Part, load_part
@@ -110,14 +110,17 @@ radius_option = click.option("--radius", type=float, default=None,
 
 
 def positive(ctx, param, value):
-    """Click callback: a given value must be a finite number > 0 (:func:`slicer.checks.positive_number`);
-    else a usage error naming the option."""
+    """Click callback: a given value must be a finite number > 0 of at most the supported magnitude
+    (:func:`slicer.checks.magnitude`); else a usage error naming the option."""
     if value is None:
         return None
     try:
-        return positive_number(value, "the value")
+        return magnitude(value, "the value", positive=True)
     except OptionError as exc:
-        raise click.BadParameter(str(exc).replace("the value ", "", 1)) from None
+        text = str(exc)
+        for prefix in ("the value = ", "the value "):
+            text = text[len(prefix):] if text.startswith(prefix) else text
+        raise click.BadParameter(text) from None
 
 
 def load_part_from(scene: str, radius=None, solids=(), clips_inside=(), clips_outside=(), repair: bool = False,

@@ -53,6 +53,10 @@ def command(scene, out, size, view, camera, fov, eye, target, opacity, max_opaci
                     view=view, camera=camera, fov=fov, eye=eye or None, target=target or None,
                     opacity=opacity, max_opacity=max_opacity, opaque=opaque, tolerance=tolerance,
                     bisection=bisection, strict=strict, bucket=bucket, threads=threads)
+    if st["roots"] == 0:
+        click.echo(f"warning: nothing is visible: no ray of the {st['width']} x {st['height']} image crosses the "
+                   f"surface (a framing that misses the model, --eye/--target looking away from it, or struts "
+                   f"far thinner than a pixel); the image is empty", err=True)
     if not quiet:
         click.echo(
             f"{st['width']} x {st['height']} px -> {out} ({st['camera']}, {st['seconds']:.2f} s, "
