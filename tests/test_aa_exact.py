@@ -102,7 +102,7 @@ def test_exact_matches_aa16_within_the_supersampling_error(seed):
     nodes = rng.uniform(-1.5, 1.5, (n, 3))
     segs = [[i, i + 1] for i in range(n - 1)]
     s = Skeleton(nodes, segs, rng.uniform(0.2, 0.5, (len(segs), 2)))
-    r16 = slice_skeleton(s, 0.1 / 16)
+    r16 = slice_skeleton(s, 0.1 / 16, layer_height=0.1)     # 4 of its layers are compared
     g_out = output_grid(r16.grid, 16)
     settings = PrintSettings(None, r16.grid.layer_height, aa=16)
     assert output_layers(r16, settings)[0] == g_out

@@ -18,6 +18,7 @@ from click.testing import CliRunner
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from formats.base import encode_workers
 from interrupting import interrupt_and_check, start_slice, wait_mid_write
 from slicer.cli import main
 from slicer.lattice import generate_lattice
@@ -248,7 +249,8 @@ def test_disk_full_mid_stack_is_a_clear_error_and_leaves_nothing(scene, tmp_path
     out = tmp_path / "stack"
     r = run("slice", scene, "-o", out, "--pixel-size", "0.05", "--slab", "10")
     assert_refused(r, "No space left on device", str(out))
-    assert calls["n"] == 5
+    # layers are encoded on a pool that runs at most 2 * workers layers ahead of the one that failed
+    assert 5 <= calls["n"] <= 5 + 2 * encode_workers()
     assert leftovers(tmp_path, "stack") == []
 
 

@@ -129,7 +129,7 @@ SUFFIX = {"zip": ".zip", "sl1s": ".sl1s", "goo": ".goo", "svg": ".svg", "cli": "
           "ctb": ".ctb", "nanodlp": ".nanodlp", "pws": ".pws"}
 
 
-@fuzz_settings(150)
+@fuzz_settings(80)
 @given(kind=_run_kind(), st_data=st.data())
 def test_fuzz_slice(kind, st_data):
     hostile, data = kind
@@ -159,7 +159,7 @@ def test_fuzz_slice(kind, st_data):
         _run(args, folder, name="slice")
 
 
-@fuzz_settings(100)
+@fuzz_settings(60)
 @given(kind=_run_kind(), st_data=st.data())
 def test_fuzz_render(kind, st_data):
     hostile, data = kind
@@ -218,7 +218,7 @@ def test_fuzz_validate(kind, st_data):
         _run(args + _options(draw, table, hostile), folder, allowed=(0, 1, 2), name="validate")
 
 
-@fuzz_settings(150)
+@fuzz_settings(80)
 @given(data=scene_file(), st_data=st.data())
 def test_fuzz_info(data, st_data):
     draw = st_data.draw
@@ -261,7 +261,7 @@ def test_fuzz_lattice(hostile, st_data):
         _run(args + _options(draw, table, hostile), Path(d), name="lattice")
 
 
-@fuzz_settings(50)
+@fuzz_settings(30)
 @given(kind=_run_kind(), st_data=st.data())
 def test_fuzz_check(kind, st_data):
     hostile, data = kind

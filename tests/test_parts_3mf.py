@@ -67,7 +67,7 @@ def test_clip_mesh_follows_the_lattice_transform_and_units(tmp_path):
     assert np.allclose(np.sort(clip.vertices, axis=0), np.sort(want, axis=0), rtol=1e-6, atol=1e-3)  # float32 text
     assert clip.volume() > 0                                        # the mirror kept the faces outward
     assert np.allclose(part.skeleton.radii.max(), 0.5 * 2 * 25.4)
-    res = slice_part(part, 2.0)
+    res = slice_part(part, 4.0)
     check_voxels(part, res, "inside")
 
 
