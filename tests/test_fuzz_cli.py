@@ -218,7 +218,7 @@ def test_fuzz_validate(kind, st_data):
         _run(args + _options(draw, table, hostile), folder, allowed=(0, 1, 2), name="validate")
 
 
-@fuzz_settings(80)
+@fuzz_settings(50)
 @given(data=scene_file(), st_data=st.data())
 def test_fuzz_info(data, st_data):
     draw = st_data.draw
@@ -230,7 +230,7 @@ def test_fuzz_info(data, st_data):
         _run(["info", str(scene)] + _options(draw, table, True), folder, name="info")
 
 
-@fuzz_settings(80)
+@fuzz_settings(50)
 @given(hostile=st.booleans(), st_data=st.data())
 def test_fuzz_lattice(hostile, st_data):
     draw = st_data.draw
