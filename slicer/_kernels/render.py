@@ -46,6 +46,7 @@ import numpy as np
 from numba import prange
 
 from .._jit import kernel, parallel_kernel
+from .borrow import borrow, keep_alive
 from .field import segment_eval
 from .lazy import complete_row, lazy_ends
 from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits,
@@ -453,6 +454,11 @@ def render_buckets(buckets, nbx, B, W, H, offsets, ids, seg, boxes2d, cam, n, si
         Status and counters per bucket (``ST_*``).
     """
     nbk = buckets.shape[0]
+    # borrowed views (slicer._kernels.borrow): the arguments outlive the launch
+    ids = borrow(ids)
+    seg = borrow(seg)
+    boxes2d = borrow(boxes2d)
+    cam = borrow(cam)
     for q in prange(nbk):
         bidx = buckets[q]
         by = bidx // nbx
@@ -460,12 +466,12 @@ def render_buckets(buckets, nbx, B, W, H, offsets, ids, seg, boxes2d, cam, n, si
         i0 = offsets[bidx]
         i1 = offsets[bidx + 1]
         nl = max(i1 - i0, 1)
-        scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = walk_buffers(nl, MAX_STACK)
-        st_fh = np.empty_like(st_f)
-        mstat = np.empty(nl, dtype=np.int64)
-        rgb = np.empty(3)
-        out4 = np.empty(4)
-        counts = np.zeros(5, dtype=np.int64)
+        own = walk_buffers(nl, MAX_STACK)
+        own_more = (np.empty((MAX_STACK + 1, nl)), np.empty(nl, dtype=np.int64), np.empty(3), np.empty(4),
+                    np.zeros(5, dtype=np.int64))
+        scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = borrow(own)
+        st_fh, mstat, rgb, out4, counts = borrow(own_more)
+        roots_q = borrow(roots[q])
         used = 0
         nroot_tot = 0
         status = OK
@@ -478,7 +484,7 @@ def render_buckets(buckets, nbx, B, W, H, offsets, ids, seg, boxes2d, cam, n, si
                     continue
                 nr = render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, strict,
                                 bisect, cut_support, keep_roots, shade, scratch, hprim, hrec, order, bps, sarr,
-                                st_t, st_f, st_fp, ct, cf, cfp, rgb, roots[q, used:], cap - used,
+                                st_t, st_f, st_fp, ct, cf, cfp, rgb, roots_q[used:], cap - used,
                                 out4, counts, st_fh, mstat, lazy)
                 if nr < 0:
                     status = ROOTS_FULL
@@ -497,3 +503,5 @@ def render_buckets(buckets, nbx, B, W, H, offsets, ids, seg, boxes2d, cam, n, si
         stats[q, ST_ROOTS] = nroot_tot
         stats[q, ST_CUT] = counts[3]
         stats[q, ST_EV_SPLIT] = counts[4]
+        keep_alive(own)
+        keep_alive(own_more)

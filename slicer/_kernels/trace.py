@@ -29,6 +29,7 @@ import numpy as np
 from numba import prange
 
 from .._jit import kernel, parallel_kernel
+from .borrow import borrow, keep_alive
 from .field import segment_eval
 from .lazy import lazy_ends, settle, split_lazy
 from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds_iv, piece_ends, sort_hits,
@@ -523,6 +524,10 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
         Crossing heights (mm) of all the bucket's rays, ray after ray.
     """
     nb = buckets.shape[0]
+    # borrowed views (slicer._kernels.borrow): the arguments outlive the launch
+    ids = borrow(ids)
+    seg = borrow(seg)
+    boxes = borrow(boxes)
     for q in prange(nb):
         bidx = buckets[q]
         by = bidx // nbx
@@ -530,13 +535,15 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
         i0 = bucket_off[bidx]
         i1 = bucket_off[bidx + 1]
         nl = max(i1 - i0, 1)
-        scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = walk_buffers(nl, MAX_STACK)
-        st_fh = np.empty_like(st_f)
-        mstat = np.empty(nl, dtype=np.int64)
-        st_kind = np.empty(MAX_STACK, dtype=np.int64)
-        st_k0 = np.empty(MAX_STACK, dtype=np.int64)
-        st_k1 = np.empty(MAX_STACK, dtype=np.int64)
-        active = np.empty(nl, dtype=np.int64)
+        own = walk_buffers(nl, MAX_STACK)
+        own_st = (np.empty((MAX_STACK + 1, nl)), np.empty(nl, dtype=np.int64), np.empty(MAX_STACK, dtype=np.int64),
+                  np.empty(MAX_STACK, dtype=np.int64), np.empty(MAX_STACK, dtype=np.int64),
+                  np.empty(nl, dtype=np.int64))
+        scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = borrow(own)
+        st_fh, mstat, st_kind, st_k0, st_k1, active = borrow(own_st)
+        rk0_all = borrow(run_k0[q])
+        rk1_all = borrow(run_k1[q])
+        cz_all = borrow(cross_z[q])
         used = 0
         xused = 0
         nev_tot = 0
@@ -552,8 +559,8 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                     continue
                 px = x0 + i * pxs
                 py = y0 - j * pys
-                rk0 = run_k0[q, used:]
-                rk1 = run_k1[q, used:]
+                rk0 = rk0_all[used:]
+                rk1 = rk1_all[used:]
                 room = cap - used
                 nx = 0
                 if method == 0:
@@ -562,7 +569,7 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                                                     bps,
                                                     sarr, st_f, st_fh, st_fp, mstat, st_kind, st_t, st_k0,
                                                     st_k1, ct, cf, cfp, rk0, rk1, room, spans, span_tol,
-                                                    cross_z[q, xused:], xcap - xused)
+                                                    cz_all[xused:], xcap - xused)
                 elif method == 1:
                     nr, ne = trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, z0, h, K,
                                                 n // 2, 1.0 / (sigma * sigma), norm, scratch,
@@ -580,3 +587,5 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
                 xused += nx
         stats[q, 0] = status
         stats[q, 1] = nev_tot
+        keep_alive(own)
+        keep_alive(own_st)

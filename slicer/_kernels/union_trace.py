@@ -39,6 +39,7 @@ import numpy as np
 from numba import prange
 
 from .._jit import kernel, parallel_kernel
+from .borrow import borrow, keep_alive
 from .field import SCRATCH, segment_eval
 from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz, ray_support
 
@@ -521,6 +522,10 @@ def trace_union_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, box
     strut's pieces always end at its support's ends).
     """
     nb = buckets.shape[0]
+    # borrowed views (slicer._kernels.borrow): the arguments outlive the launch
+    ids = borrow(ids)
+    seg = borrow(seg)
+    boxes = borrow(boxes)
     zlo = z0 - 0.5 * h
     zhi = z0 + (K - 0.5) * h
     for q in prange(nb):
@@ -532,14 +537,16 @@ def trace_union_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, box
         fp = np.array([z0, h, zlo, zhi, span_tol, PAD, 1.0 / (sigma * sigma), norm, 0.0, 0.0])
         ip = np.array([K, n // 2, 1 if strict else 0, 1 if spans else 0], dtype=np.int64)
         kp = (n, sigma, norm, kmax)
-        scratch = np.empty(SCRATCH)
-        cur = np.zeros(5)
-        bufs = (scratch, np.empty((1, NHIT)), np.empty((MAX_STACK, 3)),
-                np.empty((MAX_STACK, 3), dtype=np.int64), cur)
-        sbufs = (scratch, np.empty(max(i1 - i0, 1), dtype=np.int64))
-        runs = np.empty((max(cap, 16), 2), dtype=np.int64)
-        xs = np.empty(max(xcap, 16) if spans else 2)
-        cnt = np.zeros(3, dtype=np.int64)
+        own = (np.empty(SCRATCH), np.zeros(5), np.empty((1, NHIT)), np.empty((MAX_STACK, 3)),
+               np.empty((MAX_STACK, 3), dtype=np.int64), np.empty(max(i1 - i0, 1), dtype=np.int64),
+               np.empty((max(cap, 16), 2), dtype=np.int64), np.empty(max(xcap, 16) if spans else 2),
+               np.zeros(3, dtype=np.int64), fp, ip)
+        scratch, cur, hrec1, st, sti, active, runs, xs, cnt, fp, ip = borrow(own)
+        bufs = (scratch, hrec1, st, sti, cur)
+        sbufs = (scratch, active)
+        rk0_all = borrow(run_k0[q])
+        rk1_all = borrow(run_k1[q])
+        cz_all = borrow(cross_z[q])
         used = 0
         xused = 0
         status = OK
@@ -561,8 +568,8 @@ def trace_union_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, box
                 else:
                     ok = union_ray(seg, boxes, ids, i0, i1, fp, ip, kp, bufs, runs, xs, cnt)
                 if ok:
-                    ok = store_ray(runs, xs, cnt, run_k0[q, used:], run_k1[q, used:], cap - used,
-                                   cross_z[q, xused:], xcap - xused)
+                    ok = store_ray(runs, xs, cnt, rk0_all[used:], rk1_all[used:], cap - used,
+                                   cz_all[xused:], xcap - xused)
                 if not ok:
                     status = RUNS_FULL
                     continue
@@ -572,3 +579,4 @@ def trace_union_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, box
                 xused += cnt[C_X]
         stats[q, 0] = status
         stats[q, 1] = cnt[C_EV]
+        keep_alive(own)
