@@ -16,6 +16,7 @@ from slicer.checks import integer, number
 from slicer.errors import FormatError, OutputError
 
 from .estimate import LayerMeter
+from .rle import Band, occupied
 from .thumbnails import TopView
 
 
@@ -156,11 +157,19 @@ class BinaryStackWriter(StackWriter):
             raise OutputError(f"{self.path}: the file passes {self.max_size + 1:,} bytes, beyond the "
                               f"{self.name} format's offsets")
 
-    def layer_done(self, k: int, image: np.ndarray) -> None:
-        """Record plate image ``k`` for the estimate and previews, after its data."""
-        self._meter.add(image)
-        self._top.add(k, image)
+    def layer_done(self, k: int, image: np.ndarray, box=False) -> None:
+        """Record plate image ``k`` for the estimate and previews, after its data
+        (``box``: its :func:`formats.rle.occupied` box if known)."""
+        self._meter.add(image, box)
+        self._top.add(k, image, box)
         self._k += 1
+
+    def native_band(self, image: np.ndarray) -> tuple[Band, tuple | None]:
+        """The printer's native image of plate image ``image`` as a
+        :class:`formats.rle.Band` (only the model's box is read once the box is
+        found), and the plate box (:func:`formats.rle.occupied`)."""
+        box = occupied(image)
+        return Band.of(self.printer.to_native(image), self.printer.native_box(box)), box
 
     def finish(self) -> dict[int, bytes]:  # pragma: no cover - protocol
         """Append what follows the layers; return offset -> bytes to write over the placeholders."""

@@ -81,12 +81,12 @@ SOFTWARE_VERSION = 0x01060300
 U32 = 0xFFFFFFFF
 
 
-def encode_rle(codes: np.ndarray) -> bytes:
+def encode_rle(codes) -> bytes:
     """CTB run-length data of an image of 7-bit codes.
 
     Parameters
     ----------
-    codes : (rows, columns) uint8, values 0-127
+    codes : (rows, columns) uint8, values 0-127, or its :class:`formats.rle.Band`
 
     Returns
     -------
@@ -175,9 +175,20 @@ class CtbWriter(BinaryStackWriter):
         return struct.pack("<3f6I", s.layer_height * (k + 1), s.exposure_of(k), self.printer.layer_overhead,
                            address, size, 0, self.ex_size or LAYER_DEF_SIZE, 0, 0)
 
+    #: layers are encoded on a thread pool (formats.base.write_ordered)
+    parallel_encode = True
+
+    def encode_layer(self, k: int, image: np.ndarray):
+        """Encrypted layer data of plate image ``k`` and its plate box (thread-safe)."""
+        band, box = self.native_band(image)
+        return cipher(encode_rle(band.map(GREYS.code)), KEY, k), box
+
     def write_layer(self, k: int, image: np.ndarray) -> None:
+        self.store_layer(k, image, self.encode_layer(k, image))
+
+    def store_layer(self, k: int, image: np.ndarray, payload) -> None:
         self.next_layer(k)
-        data = cipher(encode_rle(GREYS.code[self.printer.to_native(image)]), KEY, k)
+        data, box = payload
         entry = self.layer_def(k, self.tell() + self.ex_size, len(data))
         if self.ex_size:
             lift_d, lift_v, _, retract_v = self.printer.lift
@@ -185,7 +196,7 @@ class CtbWriter(BinaryStackWriter):
                                        0.0, 0.0, 0.0, 0.0, 0.0, 255.0) + data
         self.write(data, f"layer {k}")
         self._table.append(entry)
-        self.layer_done(k, image)
+        self.layer_done(k, image, box)
 
     # ------------------------------------------------------------------ header
     def header(self, previews: tuple[int, int]) -> bytes:

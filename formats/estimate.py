@@ -43,6 +43,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .rle import occupied
+
 #: percentage of the display above which a layer counts as large (PrusaSlicer ``area_fill``)
 AREA_FILL = 50.0
 #: resin density for the weight fields of the printer formats, g/ml
@@ -215,11 +217,17 @@ class LayerMeter:
         self.grey_sum = 0
         self.slow_layers = 0
 
-    def add(self, image: np.ndarray) -> None:
-        """Record one layer, a (h, w) uint8 image."""
-        rows = np.flatnonzero(image.any(axis=1))           # only the band that holds the model
-        if rows.size:
-            band = image[rows[0]:rows[-1] + 1]
+    def add(self, image: np.ndarray, box=False) -> None:
+        """Record one layer, a (h, w) uint8 image.
+
+        ``box``: the image's :func:`formats.rle.occupied` box if known (None:
+        empty), so that only it is read; False: found here.
+        """
+        if box is False:
+            box = occupied(image)
+        if box is not None:
+            r0, r1, c0, c1 = box
+            band = image[r0:r1, c0:c1]                      # only the box that holds the model
             self.grey_sum += int(band.sum(dtype=np.uint64))
             solid = np.count_nonzero(band >= 128)
             self.slow_layers += bool(solid * 100.0 > AREA_FILL * image.size)

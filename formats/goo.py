@@ -46,12 +46,12 @@ BIG_PREVIEW = (290, 290)
 MAX_RUN = 0xFFFFFFF
 
 
-def encode_layer(image: np.ndarray) -> tuple[bytes, int]:
+def encode_layer(image) -> tuple[bytes, int]:
     """GOO RLE payload of an 8-bit image and its checksum byte.
 
     Parameters
     ----------
-    image : (y_resolution, x_resolution) uint8
+    image : (y_resolution, x_resolution) uint8, or its :class:`formats.rle.Band`
 
     Returns
     -------
@@ -93,16 +93,27 @@ class GooWriter(BinaryStackWriter):
             raise OutputError(f"{path}: GOO stores at most 65535 px per side")
         super().__init__(path, grid, meta, force, settings, placeholder=HEADER_SIZE)
 
+    #: layers are encoded on a thread pool (formats.base.write_ordered)
+    parallel_encode = True
+
+    def encode_layer(self, k: int, image: np.ndarray):
+        """RLE payload, checksum and plate box of plate image ``k`` (thread-safe)."""
+        band, box = self.native_band(image)
+        return encode_layer(band) + (box,)
+
     def write_layer(self, k: int, image: np.ndarray) -> None:
+        self.store_layer(k, image, self.encode_layer(k, image))
+
+    def store_layer(self, k: int, image: np.ndarray, encoded) -> None:
         self.next_layer(k)
         s = self.settings
-        payload, checksum = encode_layer(self.printer.to_native(image))
+        payload, checksum, box = encoded
         lift_d, lift_v, retract_d, retract_v = self.printer.lift
         rec = struct.pack(">H15fH", 0, self.printer.max_height, s.layer_height * (k + 1), s.exposure_of(k),
                           0.0, 0.0, 0.0, 0.0, lift_d, lift_v, 0.0, 0.0, retract_d, retract_v, 0.0, 0.0, 255)
         self.write(rec + DELIMITER + struct.pack(">IB", len(payload) + 2, LAYER_MAGIC) + payload
                    + bytes([checksum]) + DELIMITER, f"layer {k}")
-        self.layer_done(k, image)
+        self.layer_done(k, image, box)
 
     def header(self) -> bytes:
         """The 195 477-byte header (after :meth:`close` has set :attr:`estimate`:

@@ -65,7 +65,7 @@ from slicer.errors import FormatError
 
 from .base import BinaryStackWriter, fixed_string
 from .printers import plate_printer
-from .rle import GreyLevels, runs, split_runs
+from .rle import Band, GreyLevels, runs, split_runs
 from .thumbnails import rgb565
 
 PREVIEW = (224, 168)
@@ -176,7 +176,7 @@ def encode_pws(counts: np.ndarray, planes: int) -> bytes:
     """``pws`` bit-plane data: plane ``p`` (1..planes) sets the pixels with ``counts >= p``."""
     out = []
     for p in range(1, planes + 1):
-        vals, lens = runs((counts >= p).astype(np.uint8))
+        vals, lens = runs(counts.where_at_least(p) if isinstance(counts, Band) else (counts >= p).astype(np.uint8))
         vals, lens = split_runs(vals, lens, PWS_RUN)
         out.append(((vals.astype(np.int64) << 7) | lens).astype(np.uint8).tobytes())
     return b"".join(out)
@@ -244,26 +244,35 @@ class PhotonWriter(BinaryStackWriter):
         a["image"] = at
         return a
 
-    def encode(self, native: np.ndarray) -> bytes:
-        """Layer data of a native image (8-bit greys, stored at the nearest level)."""
-        codes = self.greys.code[native]
+    def encode(self, native) -> bytes:
+        """Layer data of a native image (8-bit greys, stored at the nearest
+        level), or of its :class:`formats.rle.Band`."""
+        codes = native.map(self.greys.code) if isinstance(native, Band) else self.greys.code[native]
         if self.machine.encoding == "pws":
             return encode_pws(codes, self.planes)
         return encode_pw0(codes, crc=self.machine.version == 1)
 
+    #: layers are encoded on a thread pool (formats.base.write_ordered)
+    parallel_encode = True
+
+    def encode_layer(self, k: int, image: np.ndarray):
+        """Layer data, lit pixels and plate box of plate image ``k`` (thread-safe)."""
+        band, box = self.native_band(image)
+        return self.encode(band), int(np.count_nonzero(band.rows)), box
+
     def write_layer(self, k: int, image: np.ndarray) -> None:
+        self.store_layer(k, image, self.encode_layer(k, image))
+
+    def store_layer(self, k: int, image: np.ndarray, payload) -> None:
         self.next_layer(k)
-        native = self.printer.to_native(image)
-        data = self.encode(native)
-        self._layers.append((self.tell(), len(data), int(np.count_nonzero(native))))
+        data, lit, box = payload
+        self._layers.append((self.tell(), len(data), lit))
         self.write(data, f"layer {k}")
-        rows = np.flatnonzero(native.any(axis=1))
-        if rows.size:
-            cols = np.flatnonzero(native[rows[0]:rows[-1] + 1].any(axis=0))
-            box = (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1)
-            old = self._box or box
-            self._box = (min(old[0], box[0]), max(old[1], box[1]), min(old[2], box[2]), max(old[3], box[3]))
-        self.layer_done(k, image)
+        nbox = self.printer.native_box(box)
+        if nbox is not None:
+            old = self._box or nbox
+            self._box = (min(old[0], nbox[0]), max(old[1], nbox[1]), min(old[2], nbox[2]), max(old[3], nbox[3]))
+        self.layer_done(k, image, box)
 
     # ------------------------------------------------------------------ tables
     def filemark(self) -> bytes:

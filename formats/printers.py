@@ -160,6 +160,34 @@ class Printer:
             img = img[::-1, :]
         return img
 
+    def native_box(self, box: tuple[int, int, int, int] | None) -> tuple[int, int, int, int] | None:
+        """Where a box of a plate image lands in :meth:`to_native`'s image.
+
+        Parameters
+        ----------
+        box : (r0, r1, c0, c1) or None
+            Half-open rows and columns of the plate image (None: empty).
+
+        Returns
+        -------
+        (r0, r1, c0, c1) or None
+            The same pixels' box in the native image.
+        """
+        if box is None:
+            return None
+        r0, r1, c0, c1 = box
+        rows, cols = self.plate_shape
+        if self.orientation == "portrait":
+            r0, r1, c0, c1, rows, cols = c0, c1, r0, r1, cols, rows
+            flip_c, flip_r = self.mirror_x, not self.mirror_y
+        else:
+            flip_c, flip_r = self.mirror_x, self.mirror_y
+        if flip_c:
+            c0, c1 = cols - c1, cols - c0
+        if flip_r:
+            r0, r1 = rows - r1, rows - r0
+        return r0, r1, c0, c1
+
     def from_native(self, native: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`to_native`: the plate image of a file's image."""
         img = native

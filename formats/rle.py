@@ -1,7 +1,10 @@
 """Helpers shared by the run-length encoded printer formats (GOO, CTB, Anycubic).
 
-* :func:`runs`: the runs of equal values of a row-major image, scanning only
-  the rows that hold the model.
+* :func:`occupied`: the box of an image's non-zero pixels.
+* :class:`Band`: the rows of an image that hold the model, contiguous; the
+  rest of a printer's plate is zero and never copied or scanned again.
+* :func:`runs`: the runs of equal values of a row-major image (or band),
+  scanning only the rows that hold the model.
 * :func:`split_runs`: runs cut to a format's longest run.
 * :class:`GreyLevels`: the grey values a format can store and the nearest
   stored value of every 8-bit grey.
@@ -11,11 +14,92 @@ from __future__ import annotations
 import numpy as np
 
 
-def runs(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def occupied(image: np.ndarray) -> tuple[int, int, int, int] | None:
+    """The smallest box ``(r0, r1, c0, c1)`` (half-open rows and columns)
+    holding every non-zero pixel of a (h, w) image; None when it has none.
+
+    One pass over the image's rows (fast on a row-major image), then one
+    over the columns of the rows found.
+
+    Examples
+    --------
+    >>> occupied(np.array([[0, 0, 0, 0], [0, 3, 0, 0], [0, 0, 9, 0]], np.uint8))
+    (1, 3, 1, 3)
+    >>> occupied(np.zeros((2, 2), np.uint8)) is None
+    True
+    """
+    rows = np.flatnonzero(image.any(axis=1))
+    if rows.size == 0:
+        return None
+    r0, r1 = int(rows[0]), int(rows[-1]) + 1
+    cols = np.flatnonzero(image[r0:r1].any(axis=0))
+    return r0, r1, int(cols[0]), int(cols[-1]) + 1
+
+
+class Band:
+    """The rows ``r0 : r0 + len(rows)`` of a (H, W) uint8 image whose other
+    rows are all zero, held as one contiguous array.
+
+    Attributes
+    ----------
+    rows : (r, W) uint8, C-contiguous
+    r0 : int
+    shape : (H, W)
+        The whole image's shape.
+    """
+
+    __slots__ = ("rows", "r0", "shape")
+
+    def __init__(self, rows: np.ndarray, r0: int, shape: tuple[int, int]):
+        self.rows = rows
+        self.r0 = int(r0)
+        self.shape = (int(shape[0]), int(shape[1]))
+
+    @classmethod
+    def of(cls, image: np.ndarray, box: tuple[int, int, int, int] | None | bool = False) -> "Band":
+        """The band of ``image`` (any strides: a view of a plate is fine).
+
+        Parameters
+        ----------
+        image : (H, W) uint8 array
+        box : (r0, r1, c0, c1), None or False
+            Where the non-zero pixels are, if known (:func:`occupied`): only
+            that box of ``image`` is read. None: the image is all zero.
+            False (default): found by scanning the image.
+        """
+        H, W = image.shape
+        if box is False:
+            box = occupied(image)
+        if box is None:
+            return cls(np.zeros((0, W), np.uint8), 0, (H, W))
+        r0, r1, c0, c1 = box
+        if c0 == 0 and c1 == W:
+            rows = np.ascontiguousarray(image[r0:r1], dtype=np.uint8)
+        else:
+            rows = np.zeros((r1 - r0, W), np.uint8)
+            rows[:, c0:c1] = image[r0:r1, c0:c1]
+        return cls(rows, r0, (H, W))
+
+    def map(self, table: np.ndarray) -> "Band":
+        """The band of ``table[image]`` (``table[0]`` must be 0, so the rows
+        outside the band stay zero)."""
+        if table[0] != 0:
+            raise ValueError("a band's table must map 0 to 0")
+        return Band(table[self.rows], self.r0, self.shape)
+
+    def where_at_least(self, level: int) -> "Band":
+        """The band of ``(image >= level)`` as 0 / 1 (``level`` >= 1)."""
+        if level < 1:
+            raise ValueError("level must be at least 1")
+        return Band((self.rows >= level).astype(np.uint8), self.r0, self.shape)
+
+
+def runs(image) -> tuple[np.ndarray, np.ndarray]:
     """Runs of equal values of a row-major image: (values (r,) uint8, lengths (r,) int64).
 
-    Only the band of rows with a non-zero pixel is scanned; the empty rows
-    above and below join the first and last runs.
+    Only the band of rows with a non-zero pixel is scanned (``image`` may be
+    a :class:`Band`); the empty rows above and below join the first and last
+    runs.
 
     Examples
     --------
@@ -23,12 +107,12 @@ def runs(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     >>> v.tolist(), n.tolist()
     ([0, 7, 0], [2, 2, 5])
     """
-    H, W = image.shape
-    band = np.flatnonzero(image.any(axis=1))
-    if band.size == 0:
+    band = image if isinstance(image, Band) else Band.of(image)
+    H, W = band.shape
+    if band.rows.shape[0] == 0:
         return np.zeros(1 if H * W else 0, np.uint8), np.full(1 if H * W else 0, H * W, np.int64)
-    r0, r1 = int(band[0]), int(band[-1]) + 1
-    flat = np.ascontiguousarray(image[r0:r1], dtype=np.uint8).reshape(-1)
+    r0, r1 = band.r0, band.r0 + band.rows.shape[0]
+    flat = band.rows.reshape(-1)
     starts = np.concatenate([[0], np.flatnonzero(flat[1:] != flat[:-1]) + 1])
     lengths = np.diff(np.concatenate([starts, [flat.size]])).astype(np.int64)
     vals = flat[starts]
@@ -117,4 +201,4 @@ class GreyLevels:
         return f"GreyLevels({self.count} levels)"
 
 
-__all__ = ["runs", "split_runs", "GreyLevels"]
+__all__ = ["occupied", "Band", "runs", "split_runs", "GreyLevels"]

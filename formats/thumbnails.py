@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .rle import occupied
+
 #: colour of the model in previews (Prusa orange), RGB
 MODEL_RGB = np.array([250.0, 120.0, 30.0])
 
@@ -31,19 +33,28 @@ class TopView:
         s = self.step
         self.height = np.full((-(-shape[0] // s), -(-shape[1] // s)), -1, np.int32)
 
-    def add(self, k: int, image: np.ndarray) -> None:
-        """Record layer k, a (rows, columns) uint8 image."""
+    def add(self, k: int, image: np.ndarray, box=False) -> None:
+        """Record layer k, a (rows, columns) uint8 image.
+
+        ``box``: the image's :func:`formats.rle.occupied` box if known (None:
+        empty), so that only it is read; False: found here.
+        """
         s = self.step
-        rows = np.flatnonzero(image.max(axis=1) >= 128)        # one pass over the whole image
+        if box is False:
+            box = occupied(image)
+        if box is None:
+            return
+        R0, R1, C0, C1 = box
+        rows = np.flatnonzero(image[R0:R1, C0:C1].max(axis=1) >= 128)
         if rows.size == 0:
             return
-        r0, r1 = rows[0] // s * s, rows[-1] + 1                 # then only the solid rows
-        band = image[r0:r1] >= 128
-        cols = np.flatnonzero(band.any(axis=0))
-        c0, c1 = cols[0] // s * s, cols[-1] + 1
+        r0, r1 = (R0 + rows[0]) // s * s, R0 + rows[-1] + 1      # then only the solid rows of the box
+        cols = np.flatnonzero((image[r0:r1, C0:C1] >= 128).any(axis=0))
+        c0, c1 = (C0 + cols[0]) // s * s, C0 + cols[-1] + 1
+        band = image[r0:r1, c0:c1] >= 128
         hb, wb = -(-(r1 - r0) // s), -(-(c1 - c0) // s)
         pad = np.zeros((hb * s, wb * s), bool)
-        pad[:r1 - r0, :c1 - c0] = band[:, c0:c1]
+        pad[:r1 - r0, :c1 - c0] = band
         blocks = pad.reshape(hb, s, wb, s).any(axis=(1, 3))
         self.height[r0 // s:r0 // s + hb, c0 // s:c0 // s + wb][blocks] = k
 

@@ -1,6 +1,7 @@
 """Layers encoded on a thread pool, stored in order: the same bytes as a serial run, errors by name."""
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import threading
 from pathlib import Path
@@ -8,10 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from formats import writer_for
 from formats.base import StackWriter, write_ordered
 from formats.nanodlp import NanoDlpWriter
 from formats.png_stack import PngStackWriter
 from formats.zip_stack import ZipStackWriter
+from formats.printers import PRINTERS, PrintSettings
+from formats.rle import Band, occupied, runs
 from slicer.errors import OutputError
 from slicer.grid import SliceGrid
 
@@ -48,6 +52,91 @@ def test_parallel_encoding_is_byte_identical(tmp_path, cls, name):
             assert write_ordered(wr, _layers(), workers) == 40
         digests.append(_digest(out))
     assert digests[0] == digests[1] == digests[2]
+
+
+def _small(name, orientation, mirror_x, mirror_y, pixels=(53, 37)):
+    """A real printer profile shrunk to ``pixels``, in any orientation and mirroring."""
+    p = PRINTERS[name]
+    px, py = p.pixel_size
+    return dataclasses.replace(p, pixels=pixels, display=(pixels[0] * px, pixels[1] * py),
+                               orientation=orientation, mirror_x=mirror_x, mirror_y=mirror_y)
+
+
+def _plates(n, shape, seed):
+    """Plate images with the model in a box that moves, greys, and empty layers."""
+    rng = np.random.default_rng(seed)
+    for k in range(n):
+        img = np.zeros(shape, np.uint8)
+        if k % 7 != 3:
+            r0, c0 = rng.integers(0, shape[0] - 8), rng.integers(0, shape[1] - 10)
+            img[r0:r0 + 8, c0:c0 + 10] = np.where(rng.random((8, 10)) < 0.6, rng.integers(1, 256, (8, 10)), 0)
+            img[r0, c0] = 255
+        yield img
+
+
+@pytest.mark.parametrize("fmt,printer", [("ctb", "elegoo-saturn"), ("ctb-v2", "elegoo-saturn"),
+                                         ("goo", "elegoo-mars-4-ultra"), ("pws", "anycubic-photon-s"),
+                                         ("pw0", "anycubic-photon-zero"), ("pwmx", "anycubic-photon-mono-x")])
+@pytest.mark.parametrize("orientation", ["landscape", "portrait"])
+def test_printer_files_encoded_in_parallel_are_byte_identical(tmp_path, fmt, printer, orientation):
+    """The same bytes from the serial write_layer path and from 2 and 5 encoding
+    threads, whatever the plate's orientation and mirroring."""
+    photon = fmt.startswith("pw")          # Anycubic files hold only their machine's display size
+    n = 6 if photon else 23
+    for mirror_x, mirror_y in ((True, False), (False, True)):
+        real = PRINTERS[printer].pixels
+        p = _small(printer, orientation, mirror_x, mirror_y,
+                   (real if orientation == "landscape" else real[::-1]) if photon else (53, 37))
+        s = PrintSettings(p, 0.05, exposure=2.0, bottom_exposure=20.0, bottom_layers=2)
+        grid = SliceGrid((0.5 * p.pixel_size[0], p.display[1] - 0.5 * p.pixel_size[1], 0.025), p.pixel_size, 0.05,
+                         p.pixels[0], p.pixels[1], n)
+        cls = writer_for(fmt, f"x.{fmt}")
+        digests = []
+        for workers in (0, 2, 5):
+            out = tmp_path / f"{mirror_x}{mirror_y}w{workers}" / f"stack.{fmt}"
+            out.parent.mkdir()
+            with cls(out, grid, {"generator": "skelslice 9.9"}, settings=s) as wr:
+                assert wr.parallel_encode
+                if workers == 0:
+                    for k, img in enumerate(_plates(n, p.plate_shape, 5)):
+                        wr.write_layer(k, img)
+                else:
+                    assert write_ordered(wr, _plates(n, p.plate_shape, 5), workers) == n
+            digests.append(_digest(out))
+        assert digests[0] == digests[1] == digests[2]
+
+
+@pytest.mark.parametrize("name", ["prusa-sl1", "elegoo-saturn", "anycubic-photon-s"])
+@pytest.mark.parametrize("orientation", ["landscape", "portrait"])
+@pytest.mark.parametrize("mirror_x,mirror_y", [(False, False), (True, False), (False, True), (True, True)])
+def test_the_native_box_and_band_are_those_of_the_native_image(name, orientation, mirror_x, mirror_y):
+    """Printer.native_box maps the plate's occupied box to the native image's,
+    and runs of the band read from that box alone are the image's runs."""
+    p = _small(name, orientation, mirror_x, mirror_y, pixels=(31, 19))
+    for img in _plates(14, p.plate_shape, 11):
+        native = p.to_native(img)
+        box = p.native_box(occupied(img))
+        assert box == occupied(native)
+        v0, n0 = runs(np.ascontiguousarray(native))
+        v1, n1 = runs(Band.of(native, box))
+        assert np.array_equal(v0, v1) and np.array_equal(n0, n1)
+        assert int(n1.sum()) == native.size
+
+
+def test_a_band_is_the_image_it_stands_for():
+    img = np.zeros((9, 12), np.uint8)
+    img[3:5, 2:6] = [[0, 7, 9, 0], [4, 0, 0, 255]]
+    band = Band.of(img)
+    assert (band.r0, band.rows.shape, band.shape) == (3, (2, 12), (9, 12))
+    full = np.zeros_like(img)
+    full[band.r0:band.r0 + band.rows.shape[0]] = band.rows
+    assert np.array_equal(full, img)
+    table = np.arange(256, dtype=np.uint8) // 2
+    assert np.array_equal(Band.of(img).map(table).rows, table[img[3:5]])
+    assert np.array_equal(band.where_at_least(8).rows, (img[3:5] >= 8).astype(np.uint8))
+    assert Band.of(np.zeros((4, 4), np.uint8)).rows.shape == (0, 4)
+    with pytest.raises(ValueError):
+        band.map(np.full(256, 1, np.uint8))          # would light the rows outside the band
 
 
 class _Recorder(StackWriter):

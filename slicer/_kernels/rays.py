@@ -204,7 +204,7 @@ def prim_bound(hrec, r, f0, f1, g0, g1, d0, d1, ta, tb, strict):
         # piece that swallows a whole bump): Lipschitz, never monotone
         # unless the bound says the primitive is zero on the piece
         K = lipschitz(hrec, r, ta, tb)
-        return 0.0, 0.5 * K * (tb - ta), 0 if K == 0.0 else 2
+        return 0.0, min(0.5 * K * (tb - ta), hrec[r, H_FMAX]), 0 if K == 0.0 else 2
     if not strict and d1 > 0.0 and d0 >= 0.0:
         return f0, g1, 1
     if not strict and d0 < 0.0 and d1 <= 0.0:
@@ -212,7 +212,7 @@ def prim_bound(hrec, r, f0, f1, g0, g1, d0, d1, ta, tb, strict):
     if d0 == 0.0 and d1 == 0.0 and (g0 != f0 or g1 != f1):
         return min(f0, f1), hrec[r, H_FMAX], 2
     K = lipschitz(hrec, r, ta, tb)
-    hi = 0.5 * (g0 + g1 + K * (tb - ta))
+    hi = min(0.5 * (g0 + g1 + K * (tb - ta)), hrec[r, H_FMAX])
     if strict:
         return max(0.0, 0.5 * (f0 + f1 - K * (tb - ta))), hi, 2
     return min(f0, f1), hi, 2
