@@ -263,8 +263,11 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
         Leaves are split until their diagonal is at most ``tol``; vertices are
         root-solved to ``tol`` along leaf edges.
     stats : dict, optional
-        Updated with ``evaluations``, ``cells``, ``leaves``, ``small_leaves``,
-        ``vertices``, ``unbracketed``.
+        Updated with ``evaluations`` (all field evaluations, points) and
+        their split by stage: ``cell_evaluations`` (cell centres, with the
+        gradient), ``corner_evaluations`` (leaf corners on the walks) and
+        ``root_evaluations`` (root solves of the crossings); ``cells``,
+        ``leaves``, ``small_leaves``, ``vertices``, ``unbracketed``.
     root_cell : float, optional, mm
         Side of the root cells (default: ``ROOT_CELL_RADII`` times the median
         radius of the plane's struts).
@@ -281,7 +284,8 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
     list of (n_q, 2) float64
         Outer rings counter-clockwise, holes clockwise (not yet refined).
     """
-    st = {"evaluations": 0, "cells": 0, "leaves": 0, "small_leaves": 0, "vertices": 0, "unbracketed": 0}
+    st = {"evaluations": 0, "cell_evaluations": 0, "corner_evaluations": 0, "root_evaluations": 0,
+          "cells": 0, "leaves": 0, "small_leaves": 0, "vertices": 0, "unbracketed": 0}
     rings = []
     ids = plane_segments(skel, z)
     if ids.size:
@@ -354,6 +358,7 @@ def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray
     st["leaves"] += X0.size
     st["small_leaves"] += int((state == SMALL).sum())
     st["evaluations"] += bounds.evaluations
+    st["cell_evaluations"] += bounds.evaluations
     act = np.flatnonzero(state >= SIMPLE)
     if act.size == 0:
         return []
@@ -362,6 +367,7 @@ def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray
     wx, wy = x0 + px * h, y0 + py * h
     f = _field(skel, np.column_stack([wx, wy, np.full(px.size, z)]))[0]
     st["evaluations"] += px.size
+    st["corner_evaluations"] += px.size
     ukey, succ, exit_leaf = _pair_crossings(leaf, point, f >= 1.0, px.size)
     if ukey.size == 0:
         return []
@@ -374,6 +380,7 @@ def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray
     B = np.column_stack([wx[uo], wy[uo], za])
     _, tt, ok, ne = solve_crossings(skel, A, B, tol, fa=f[ui], fb=f[uo])
     st["evaluations"] += ne
+    st["root_evaluations"] += ne
     st["unbracketed"] += int((~ok).sum())
     tt = np.clip(tt, 1e-6, 1.0 - 1e-6)            # keep vertices off the lattice points: rings stay simple
     verts = (A + tt[:, None] * (B - A))[:, :2]
