@@ -8,9 +8,10 @@ signs give -- or the leaf's diagonal is at most the tolerance. The proofs use
 the field and its gradient at the cell's centre ``c`` and sound bounds over
 the disc of radius ``r`` (half the diagonal) around it
 (:mod:`slicer._kernels.cellbounds`, docs/math.md §10): with ``G`` a bound of
-``‖∇F‖`` and ``H`` of the Hessian's norm over the disc,
+the in-plane slope ``‖∇_xy F‖`` and ``H`` of the in-plane Hessian's norm over
+the disc,
 
-* ``|F(p) − F(c)| <= r min(G, ‖∇F(c)‖ + r H / 2)`` (settled when this keeps
+* ``|F(p) − F(c)| <= r min(G, ‖∇_xy F(c)‖ + r H / 2)`` (settled when this keeps
   ``F`` on one side of 1);
 * ``|∂F/∂x(p) − ∂F/∂x(c)| <= r H`` (simple when neither partial can vanish).
 
