@@ -38,12 +38,8 @@ from .._kernels.contours import chain_rings
 from ..errors import OptionError
 from ..field import point_grid, support_boxes
 from ..skeleton import Skeleton
-from .roots import _field, solve_crossings
+from .roots import FIELD_SLACK, _field, solve_crossings
 from .simplify import CHORD_FRACTION
-
-#: relative error budget of one closed-form field evaluation (docs/math.md §2.6
-#: and the stiff-case suite: ~1e-13); cells are settled only beyond it
-FIELD_SLACK = 1e-9
 
 #: root cells have this many times the median radius of the plane's struts
 ROOT_CELL_RADII = 0.5
@@ -95,7 +91,9 @@ class _Bounds:
 
     def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
         """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
-        and a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none)."""
+        a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none),
+        and lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over it, (c, 2) float64,
+        1/mm (0: none)."""
         sk = self.skel
         G, H, U = disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
         # the bound of F over the disc stays below 1 (or no support reaches it): outside, no evaluation
@@ -132,7 +130,9 @@ class _Bounds:
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             glo = gn - gs
             kappa = np.where(glo > 0, H / np.where(glo > 0, glo, 1.0), np.inf)
-        return state, kappa
+            slope = np.maximum(np.column_stack([np.abs(gx), np.abs(gy)]) - gs[:, None], 0.0)
+        slope[~np.isfinite(slope)] = 0.0
+        return state, kappa, slope
 
 
 def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int, levels: int):
@@ -145,6 +145,8 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
     state : (l,) int8
     kappa : (l,) float64
         Bound of the contour's curvature in each leaf, 1/mm.
+    slope : (l, 2) float64
+        Lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over each leaf, 1/mm.
     cells : int
         Cells examined.
     """
@@ -156,13 +158,13 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
             break
         s = s0 / 2.0 ** lev
         r = np.full(ix.size, 0.5 * math.sqrt(2.0) * s * (1.0 + SLACK))
-        state, kappa = bounds.classify(x0 + (ix + 0.5) * s, y0 + (iy + 0.5) * s, r)
+        state, kappa, slope = bounds.classify(x0 + (ix + 0.5) * s, y0 + (iy + 0.5) * s, r)
         cells += ix.size
         if lev == levels:
             state[state < 0] = SMALL
         done = state >= 0
         unit = 1 << (levels - lev)
-        out.append((ix[done] * unit, iy[done] * unit, unit, state[done], kappa[done]))
+        out.append((ix[done] * unit, iy[done] * unit, unit, state[done], kappa[done], slope[done]))
         split = ~done
         ix = (2 * ix[split][:, None] + np.array([0, 1, 0, 1])).ravel()
         iy = (2 * iy[split][:, None] + np.array([0, 0, 1, 1])).ravel()
@@ -171,7 +173,8 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
     size = np.concatenate([np.full(o[0].size, o[2], np.int64) for o in out])
     state = np.concatenate([o[3] for o in out])
     kappa = np.concatenate([o[4] for o in out])
-    return X0, Y0, X0 + size, Y0 + size, state, kappa, cells
+    slope = np.concatenate([o[5] for o in out])
+    return X0, Y0, X0 + size, Y0 + size, state, kappa, slope, cells
 
 
 def _edge_points(line: np.ndarray, keys_line: np.ndarray, keys_pos: np.ndarray,
@@ -354,7 +357,7 @@ def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray
     """:func:`guaranteed_rings` for a plane that some supports meet."""
     x0, y0, s0, nx, ny, levels = _root_grid(skel, ids, tol, root_cell)
     bounds = _Bounds(skel, z, ids, tol)
-    X0, Y0, X1, Y1, state, kappa, cells = _quadtree(bounds, x0, y0, s0, nx, ny, levels)
+    X0, Y0, X1, Y1, state, kappa, slope, cells = _quadtree(bounds, x0, y0, s0, nx, ny, levels)
     st["cells"] += cells
     st["leaves"] += X0.size
     st["small_leaves"] += int((state == SMALL).sum())
@@ -379,7 +382,10 @@ def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray
     za = np.full(ui.size, z)
     A = np.column_stack([wx[ui], wy[ui], za])
     B = np.column_stack([wx[uo], wy[uo], za])
-    _, tt, ok, ne = solve_crossings(skel, A, B, tol, fa=f[ui], fb=f[uo])
+    # the leaf that walked each elementary edge holds it: its slope bound along the edge
+    horizontal = py[ui] == py[uo]
+    edge_slope = np.where(horizontal, slope[act[exit_leaf], 0], slope[act[exit_leaf], 1])
+    _, tt, ok, ne = solve_crossings(skel, A, B, tol, fa=f[ui], fb=f[uo], slope=edge_slope)
     st["evaluations"] += ne
     st["root_evaluations"] += ne
     st["unbracketed"] += int((~ok).sum())
