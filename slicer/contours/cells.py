@@ -92,8 +92,9 @@ class _Bounds:
     def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
         """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
         a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none),
-        and lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over it, (c, 2) float64,
-        1/mm (0: none)."""
+        lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over it, (c, 2) float64,
+        1/mm (0: none), and the field at its centre, (c,) float64 (0 where the
+        bound ``U`` already puts the cell outside: not evaluated)."""
         sk = self.skel
         G, H, U = disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
         # the bound of F over the disc stays below 1 (or no support reaches it): outside, no evaluation
@@ -132,7 +133,7 @@ class _Bounds:
             kappa = np.where(glo > 0, H / np.where(glo > 0, glo, 1.0), np.inf)
             slope = np.maximum(np.column_stack([np.abs(gx), np.abs(gy)]) - gs[:, None], 0.0)
         slope[~np.isfinite(slope)] = 0.0
-        return state, kappa, slope
+        return state, kappa, slope, f
 
 
 def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int, levels: int):
@@ -149,16 +150,22 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
         Lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over each leaf, 1/mm.
     cells : int
         Cells examined.
+    known : ((k,) int64, (k,) int64, (k,) float64)
+        Lattice points ``(x, y)`` where the field is known: the centres of
+        the split cells (corners of their children), and its values there.
     """
     iy, ix = np.divmod(np.arange(nx * ny, dtype=np.int64), nx)
     out = []
+    known = []
     cells = 0
     for lev in range(levels + 1):
         if ix.size == 0:
             break
         s = s0 / 2.0 ** lev
         r = np.full(ix.size, 0.5 * math.sqrt(2.0) * s * (1.0 + SLACK))
-        state, kappa, slope = bounds.classify(x0 + (ix + 0.5) * s, y0 + (iy + 0.5) * s, r)
+        # (ix + 0.5) s is (ix unit + unit/2) h exactly (s = unit h, a power of two):
+        # a split cell's centre is bit for bit its children's common corner
+        state, kappa, slope, f = bounds.classify(x0 + (ix + 0.5) * s, y0 + (iy + 0.5) * s, r)
         cells += ix.size
         if lev == levels:
             state[state < 0] = SMALL
@@ -166,6 +173,8 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
         unit = 1 << (levels - lev)
         out.append((ix[done] * unit, iy[done] * unit, unit, state[done], kappa[done], slope[done]))
         split = ~done
+        if unit >= 2:
+            known.append((ix[split] * unit + unit // 2, iy[split] * unit + unit // 2, f[split]))
         ix = (2 * ix[split][:, None] + np.array([0, 1, 0, 1])).ravel()
         iy = (2 * iy[split][:, None] + np.array([0, 0, 1, 1])).ravel()
     X0 = np.concatenate([o[0] for o in out])
@@ -174,7 +183,26 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
     state = np.concatenate([o[3] for o in out])
     kappa = np.concatenate([o[4] for o in out])
     slope = np.concatenate([o[5] for o in out])
-    return X0, Y0, X0 + size, Y0 + size, state, kappa, slope, cells
+    kx = np.concatenate([k[0] for k in known] + [np.zeros(0, np.int64)])
+    ky = np.concatenate([k[1] for k in known] + [np.zeros(0, np.int64)])
+    kf = np.concatenate([k[2] for k in known] + [np.zeros(0)])
+    return X0, Y0, X0 + size, Y0 + size, state, kappa, slope, cells, (kx, ky, kf)
+
+
+def _known_values(px, py, kx, ky, kf, ymax: int) -> np.ndarray:
+    """Field at lattice points ``(px, py)`` where ``(kx, ky)`` holds it (``kf``), NaN elsewhere."""
+    out = np.full(px.size, np.nan)
+    if kx.size == 0:
+        return out
+    big = np.int64(ymax + 1)
+    key = kx * big + ky
+    order = np.argsort(key)
+    key = key[order]
+    want = px * big + py
+    j = np.minimum(np.searchsorted(key, want), key.size - 1)
+    hit = key[j] == want
+    out[hit] = kf[order[j[hit]]]
+    return out
 
 
 def _edge_points(line: np.ndarray, keys_line: np.ndarray, keys_pos: np.ndarray,
@@ -357,7 +385,7 @@ def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray
     """:func:`guaranteed_rings` for a plane that some supports meet."""
     x0, y0, s0, nx, ny, levels = _root_grid(skel, ids, tol, root_cell)
     bounds = _Bounds(skel, z, ids, tol)
-    X0, Y0, X1, Y1, state, kappa, slope, cells = _quadtree(bounds, x0, y0, s0, nx, ny, levels)
+    X0, Y0, X1, Y1, state, kappa, slope, cells, known = _quadtree(bounds, x0, y0, s0, nx, ny, levels)
     st["cells"] += cells
     st["leaves"] += X0.size
     st["small_leaves"] += int((state == SMALL).sum())
@@ -369,9 +397,11 @@ def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray
     px, py, leaf, point = _boundary_walks(X0[act], Y0[act], X1[act], Y1[act])
     h = s0 / 2.0 ** levels
     wx, wy = x0 + px * h, y0 + py * h
-    f = _field(skel, np.column_stack([wx, wy, np.full(px.size, z)]))[0]
-    st["evaluations"] += px.size
-    st["corner_evaluations"] += px.size
+    f = _known_values(px, py, *known, ny << levels)
+    todo = np.flatnonzero(np.isnan(f))
+    f[todo] = _field(skel, np.column_stack([wx[todo], wy[todo], np.full(todo.size, z)]))[0]
+    st["evaluations"] += todo.size
+    st["corner_evaluations"] += todo.size
     ukey, succ, exit_leaf = _pair_crossings(leaf, point, f >= 1.0, px.size)
     if ukey.size == 0:
         return []
