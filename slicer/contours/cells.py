@@ -93,8 +93,10 @@ class _Bounds:
         """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
         a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none),
         lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over it, (c, 2) float64,
-        1/mm (0: none), and the field at its centre, (c,) float64 (0 where the
-        bound ``U`` already puts the cell outside: not evaluated)."""
+        1/mm (0: none), and the Taylor data of its centre: the field, (c,)
+        float64 (0 where the bound ``U`` already puts the cell outside: not
+        evaluated), the in-plane gradient, (c, 2) float64, 1/mm, and the bounds
+        ``G`` and ``H`` over the disc."""
         sk = self.skel
         G, H, U = disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
         # the bound of F over the disc stays below 1 (or no support reaches it): outside, no evaluation
@@ -133,7 +135,34 @@ class _Bounds:
             kappa = np.where(glo > 0, H / np.where(glo > 0, glo, 1.0), np.inf)
             slope = np.maximum(np.column_stack([np.abs(gx), np.abs(gy)]) - gs[:, None], 0.0)
         slope[~np.isfinite(slope)] = 0.0
-        return state, kappa, slope, f
+        return state, kappa, slope, (f, np.column_stack([gx, gy]), G, H)
+
+    @staticmethod
+    def settle_children(taylor, r: float, offset: np.ndarray) -> np.ndarray:
+        """IN or OUT (else -1) of child cells from their parent's Taylor data, with no
+        evaluation: over the child's disc (radius ``r``, inside the parent's disc of
+        radius ``2 r``), ``F(p)`` lies within ``r ‖∇F(c)‖ + H (2 r)² / 2`` of the
+        parent's linear model at the child's centre ``c + offset``.
+
+        Parameters
+        ----------
+        taylor : tuple
+            The parents' ``(f, grad, G, H)`` (:meth:`classify`), one row per child.
+        r : float, mm
+            Half diagonal of the children (with its slack).
+        offset : (c, 2) float64, mm
+            Child centre minus parent centre.
+        """
+        f, g, G, H = taylor
+        gn = np.hypot(g[:, 0], g[:, 1])
+        with np.errstate(invalid="ignore", over="ignore"):
+            lin = f + g[:, 0] * offset[:, 0] + g[:, 1] * offset[:, 1]
+            spread = r * gn + 2.0 * H * r * r
+            slack = FIELD_SLACK * (1.0 + np.abs(f) + 2.0 * r * (gn + G))
+        state = np.full(f.size, -1, np.int8)
+        state[lin + spread + slack < 1.0] = OUT
+        state[lin - spread - slack > 1.0] = IN
+        return state
 
 
 def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int, levels: int):
@@ -158,14 +187,26 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
     out = []
     known = []
     cells = 0
+    parent = None
     for lev in range(levels + 1):
         if ix.size == 0:
             break
         s = s0 / 2.0 ** lev
-        r = np.full(ix.size, 0.5 * math.sqrt(2.0) * s * (1.0 + SLACK))
+        rr = 0.5 * math.sqrt(2.0) * s * (1.0 + SLACK)
+        cx, cy = x0 + (ix + 0.5) * s, y0 + (iy + 0.5) * s
+        state = np.full(ix.size, -1, np.int8)
+        kappa = np.full(ix.size, np.inf)
+        slope = np.zeros((ix.size, 2))
+        f = np.full(ix.size, np.nan)
+        if parent is not None:            # children proven IN or OUT by their parent's data
+            pc, taylor = parent
+            state = bounds.settle_children(taylor, rr, np.column_stack([cx - pc[:, 0], cy - pc[:, 1]]))
+        rest = np.flatnonzero(state < 0)
         # (ix + 0.5) s is (ix unit + unit/2) h exactly (s = unit h, a power of two):
         # a split cell's centre is bit for bit its children's common corner
-        state, kappa, slope, f = bounds.classify(x0 + (ix + 0.5) * s, y0 + (iy + 0.5) * s, r)
+        st_r, kappa[rest], slope[rest], taylor = bounds.classify(cx[rest], cy[rest], np.full(rest.size, rr))
+        state[rest] = st_r
+        f[rest] = taylor[0]
         cells += ix.size
         if lev == levels:
             state[state < 0] = SMALL
@@ -175,6 +216,10 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
         split = ~done
         if unit >= 2:
             known.append((ix[split] * unit + unit // 2, iy[split] * unit + unit // 2, f[split]))
+        # split cells were all classified (settled children are leaves): their Taylor data
+        ks = np.flatnonzero(~done[rest])
+        parent = (np.repeat(np.column_stack([cx[rest[ks]], cy[rest[ks]]]), 4, axis=0),
+                  tuple(np.repeat(a[ks], 4, axis=0) for a in taylor))
         ix = (2 * ix[split][:, None] + np.array([0, 1, 0, 1])).ravel()
         iy = (2 * iy[split][:, None] + np.array([0, 0, 1, 1])).ravel()
     X0 = np.concatenate([o[0] for o in out])
