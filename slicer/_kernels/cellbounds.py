@@ -133,8 +133,9 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
     Returns ``g`` (in-plane slope), ``h`` (the integrand's Hessian norm),
     ``f`` (value), and the three sums of the split Hessian (docs/math.md §10):
     ``bh``, ``bl`` (upper and lower bounds of the isotropic part
-    ``b = ∫ β dt``) and ``a`` (upper bound of the trace of the in-plane part
-    of ``∫ α e eᵀ dt``)."""
+    ``b = ∫ β dt``), ``a`` (upper bound of the trace of the in-plane part
+    of ``∫ α e eᵀ dt``) and ``ap`` (upper bound of ``∫ α ‖e⊥‖² dt``, e⊥ the
+    part of e across the axis)."""
     wx = cx - seg[i, AX]
     wy = cy - seg[i, AY]
     wz = cz - seg[i, AZ]
@@ -153,6 +154,9 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
     bh = 0.0
     bl = 0.0
     a = 0.0
+    ap = 0.0
+    # distance of c from the axis line: every p of the disc is within it + r
+    rho = math.sqrt(max(wx * wx + wy * wy + wz * wz - wu * wu, 0.0)) * (1.0 + SLACK) + r
     for j in range(PIECES):
         t0 = ta + j * step
         t1 = tb if j == PIECES - 1 else t0 + step
@@ -164,7 +168,7 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
         tau_lo = tau0 + d * t0
         tau_hi = tau0 + d * t1
         if not tau_lo > 0.0:
-            return np.inf, np.inf, np.inf, np.inf, 0.0, np.inf
+            return np.inf, np.inf, np.inf, np.inf, 0.0, np.inf, np.inf
         # farthest point of the piece from c, and its largest in-plane offset
         # (both convex in t: at an end of the piece)
         x0 = wx - t0 * ux
@@ -177,8 +181,10 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
         dmax = math.sqrt(max(x0 * x0 + y0 * y0 + z0 * z0, x1 * x1 + y1 * y1 + z1 * z1))
         dlo = dist * (1.0 - SLACK) - r
         pe = 1.0
+        pp = 1.0
         if dlo > 0.0:
             pe = min(1.0, (pxy * (1.0 + SLACK) + r) / dlo)
+            pp = min(1.0, rho / dlo)
         s_lo = max(dlo, 0.0) / (tau_hi * (1.0 + SLACK))
         s_hi = (dmax * (1.0 + SLACK) + r) / (tau_lo * (1.0 - SLACK))
         ln = t1 - t0
@@ -191,10 +197,34 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
             if m >= 2:
                 bh += ln * cn * (1.0 - u_lo) ** (m - 1) / (tau_lo * tau_lo * tau_lo)
                 bl += ln * cn * (1.0 - u_hi) ** (m - 1) / (tau_hi * tau_hi * tau_hi)
-                a += ln * cn * _second_sup(u_lo, u_hi, m) * pe * pe / (tau_lo * tau_lo * tau_lo)
+                sec = ln * cn * _second_sup(u_lo, u_hi, m) / (tau_lo * tau_lo * tau_lo)
+                a += sec * pe * pe
+                ap += sec * pp * pp
     if m < 2:
         bh = np.inf
-    return g, h, f, bh, bl, a
+    return g, h, f, bh, bl, a, ap
+
+
+@kernel
+def _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
+    """Upper bound over the disc of ``|∇ψ(p − a)| + |∇ψ(p − b)|``, ψ the integrand
+    at the segment's ends ``a`` and ``b`` (radii τ0 and τ1)."""
+    L = seg[i, LEN]
+    out = 0.0
+    for end in range(2):
+        t = 0.0 if end == 0 else L
+        tau = seg[i, TAU0] + seg[i, DELTA] * t
+        ex = cx - seg[i, AX] - t * seg[i, UX]
+        ey = cy - seg[i, AY] - t * seg[i, UY]
+        ez = cz - seg[i, AZ] - t * seg[i, UZ]
+        d = math.sqrt(ex * ex + ey * ey + ez * ez)
+        s_lo = max(d * (1.0 - SLACK) - r, 0.0) / (tau * (1.0 + SLACK))
+        out += _slope_sup(s_lo, n, sigma, norm, k1) / (tau * tau)
+    return out
+
+
+#: largest ``2 a b + a²`` over ``a² + b² = 1`` (the eigenvalue (1 + √5)/2 of [[1, 1], [1, 0]])
+GOLDEN = 1.6180339887498950
 
 
 @kernel
@@ -237,23 +267,29 @@ def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
         h = 0.0
         u = 0.0
         bh = 0.0
-        bl = 0.0
-        a = 0.0
+        top = 0.0
+        mag = 0.0
         for q in range(ids.shape[0]):
             i = ids[q]
             ta, tb = _reach_interval(seg, i, cx[j], cy[j], z, r[j], sigma)
             if not tb > ta:
                 continue
-            gi, hi, ui, bhi, bli, ai = _piece_bounds(seg, i, cx[j], cy[j], z, r[j], ta, tb, n, sigma, norm,
-                                                     k1, k2)
+            gi, hi, ui, bhi, bli, ai, api = _piece_bounds(seg, i, cx[j], cy[j], z, r[j], ta, tb, n, sigma,
+                                                          norm, k1, k2)
             g += gi
             h += hi
             u += ui
             bh += bhi
-            bl += bli
-            a += ai
-        # split Hessian: every in-plane second derivative lies in [-b, a - b]
-        split = max(bh * (1.0 + SLACK), a * (1.0 + SLACK) - bl * (1.0 - SLACK))
+            # this segment's in-plane second derivatives lie in [-bh, up]
+            up = ai - bli
+            mag += ai + bli
+            if seg[i, DELTA] == 0.0:   # untapered: the axial derivatives are end terms
+                w = _end_slopes(seg, i, cx[j], cy[j], z, r[j], n, sigma, norm, k1)
+                up = min(up, max(api - bli, 0.0) + GOLDEN * w)
+                mag += api + w
+            top += up
+        # split Hessian: every in-plane second derivative lies in [-bh, top]
+        split = max(bh, top + 4.0 * SLACK * mag) * (1.0 + SLACK)
         G[j] = g * (1.0 + SLACK)
         H[j] = min(h * (1.0 + SLACK), split)
         U[j] = u * (1.0 + SLACK)
