@@ -164,6 +164,29 @@ def test_root_solve_matches_slow_bisection():
             assert abs(tt[q] - ref) * 3.0 <= tol
 
 
+def test_root_solve_with_a_slope_bound_is_within_half_the_tolerance_and_cheaper():
+    """Radial edges across a vertical strut of radius 1: |dF/dl| is at least the least
+    sampled radial slope times 0.9 on each edge; the vertices stay within tol/2."""
+    s = Skeleton([[0, 0, -5], [0, 0, 5]], [[0, 1]], [[1.0, 1.0]])
+    rng = np.random.default_rng(3)
+    phi = rng.uniform(0, 2 * np.pi, 40)
+    ra = rng.uniform(0.90, 0.999, 40)
+    rb = rng.uniform(1.001, 1.08, 40)
+    e = np.column_stack([np.cos(phi), np.sin(phi), np.zeros(40)])
+    a, b = ra[:, None] * e, rb[:, None] * e
+    w = np.linspace(0, 1, 201)
+    slope = np.array([np.abs(np.gradient(evaluate(s, a[q] + w[:, None] * (b[q] - a[q]))[0],
+                                         w * (rb[q] - ra[q]))).min() for q in range(40)])
+    tol = 1e-3
+    _, t_ref, _, _ = solve_crossings(s, a, b, 1e-12)
+    _, t0, ok0, n0 = solve_crossings(s, a, b, tol)
+    _, t1, ok1, n1 = solve_crossings(s, a, b, tol, slope=0.9 * slope)
+    assert ok0.all() and ok1.all()
+    length = rb - ra
+    assert (np.abs(t1 - t_ref) * length <= 0.5 * tol).all()
+    assert n1 < n0
+
+
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 10**6), px=st.sampled_from([0.09, 0.15, 0.23]))
 @example(seed=262144, px=0.15)      # chord refinement once made a ring self-intersect

@@ -1,22 +1,22 @@
-"""Per-primitive bounds of the field's slope and curvature over a disc of a
-layer plane (docs/math.md §10).
+"""Per-primitive bounds of the field's in-plane slope and curvature over a
+disc of a layer plane (docs/math.md §10).
 
 For a point ``p`` and one segment, ``f(p) = ∫ (1/τ) k(‖p − q‖/τ) dq`` over
 the arc length ``t`` (docs/math.md §1.1). The integrand's gradient in ``p``
-has norm ``|k'(s)| / τ²`` and its Hessian norm at most
-``max(|k''(s)|, |k'(s)/s|) / τ³`` (``s = ‖p − q‖/τ``), and both vanish
-unless ``‖p − q(t)‖ < στ(t)``. Over every ``p`` of the disc of centre ``c``
-and radius ``r`` the points of the axis that can act satisfy
-``‖c − q(t)‖ < στ(t) + r``: an interval ``[ta, tb]`` of arc length, the
-roots of a quadratic, clipped to ``[0, L]``. Hence, for all p in the disc,
-
-    ‖∇f(p)‖  <= K1 ∫_ta^tb dt/τ²  = K1 (tb − ta) / (τa τb)
-    ‖∇²f(p)‖ <= K2 ∫_ta^tb dt/τ³  = K2 (tb − ta)(τa + τb) / (2 τa² τb²)
-
-with ``K1 = max|k'|`` and ``K2 = max(max|k''|, max|k'(s)/s|)``. The roots
-are widened by a relative margin and the sums scaled up by ``1 + 1e-9``
-(no directed rounding in Numba: a margin far above the rounding error of
-the few operations involved).
+is ``k'(s) e / τ²`` (``e = (p − q)/‖p − q‖``, ``s = ‖p − q‖/τ``) and its
+Hessian ``α e eᵀ − β I`` with ``α = (k'' − k'/s)/τ³ >= 0`` and
+``β = −(k'/s)/τ³ >= 0``; both vanish unless ``‖p − q(t)‖ < στ(t)``. Over
+every ``p`` of the disc of centre ``c`` and radius ``r`` the points of the
+axis that can act satisfy ``‖c − q(t)‖ < στ(t) + r``: an interval
+``[ta, tb]`` of arc length, the roots of a quadratic, clipped to ``[0, L]``.
+That interval is cut into ``PIECES`` pieces, on each of which ``s``, ``τ``
+and the in-plane part of ``e`` are bounded; summing over pieces and
+segments gives ``G`` (in-plane slope), ``H`` (in-plane Hessian: the smaller
+of the summed norms and ``max(b, tr M − b)``, ``M`` the integral of the
+positive semi-definite part, ``b`` of the isotropic one) and ``U`` (value).
+The roots are widened by a relative margin and the sums scaled by
+``1 ± 1e-9`` (no directed rounding in Numba: a margin far above the
+rounding error of the few operations involved).
 """
 from __future__ import annotations
 
@@ -79,7 +79,7 @@ def kernel_curvature_max(n, sigma, norm):
 
 #: pieces of the reach interval bounded separately (tighter than one piece:
 #: the kernel's slope and curvature fall off away from the foot of c)
-PIECES = 8
+PIECES = 32
 
 
 @kernel
@@ -112,10 +112,30 @@ def _curvature_sup(s, n, sigma, norm, k2):
 
 
 @kernel
+def _second_sup(ulo, uhi, m):
+    """``sup 2(m − 1) u (1 − u)^(m−2)`` over ``u`` in ``[ulo, uhi]`` (within [0, 1];
+    it rises up to ``u = 1/(m − 1)`` and then falls; for m = 2 it is 2u)."""
+    if m == 2:
+        return 2.0 * uhi
+    peak = 1.0 / (m - 1.0)
+    u = peak if ulo <= peak <= uhi else (uhi if uhi < peak else ulo)
+    return 2.0 * (m - 1.0) * u * (1.0 - u) ** (m - 2)
+
+
+@kernel
 def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
     """Slope, curvature and value bounds of segment ``i`` over the disc, from the
     axis points ``t`` in ``[ta, tb]``, split into ``PIECES`` pieces: on a piece,
-    ``s >= (dist(c, piece) - r) / tau_max`` and ``1/tau <= 1/tau_min``."""
+    ``dist(c, piece) − r <= ‖p − q‖ <= max(‖c − q(t0)‖, ‖c − q(t1)‖) + r``,
+    ``tau_min <= tau <= tau_max`` and the in-plane part of the unit vector
+    ``e = (p − q)/‖p − q‖`` is at most ``pe = (max |P(c − q)| + r)/(dist − r)``.
+
+    Returns ``g`` (in-plane slope), ``h`` (the integrand's Hessian norm),
+    ``f`` (value), and the three sums of the split Hessian (docs/math.md §10):
+    ``bh``, ``bl`` (upper and lower bounds of the isotropic part
+    ``b = ∫ β dt``), ``a`` (upper bound of the trace of the in-plane part
+    of ``∫ α e eᵀ dt``) and ``ap`` (upper bound of ``∫ α ‖e⊥‖² dt``, e⊥ the
+    part of e across the axis)."""
     wx = cx - seg[i, AX]
     wy = cy - seg[i, AY]
     wz = cz - seg[i, AZ]
@@ -125,10 +145,18 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
     wu = wx * ux + wy * uy + wz * uz
     tau0 = seg[i, TAU0]
     d = seg[i, DELTA]
+    m = n // 2
+    cn = norm * n / (sigma * sigma)
     step = (tb - ta) / PIECES
     g = 0.0
     h = 0.0
     f = 0.0
+    bh = 0.0
+    bl = 0.0
+    a = 0.0
+    ap = 0.0
+    # distance of c from the axis line: every p of the disc is within it + r
+    rho = math.sqrt(max(wx * wx + wy * wy + wz * wz - wu * wu, 0.0)) * (1.0 + SLACK) + r
     for j in range(PIECES):
         t0 = ta + j * step
         t1 = tb if j == PIECES - 1 else t0 + step
@@ -140,19 +168,68 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
         tau_lo = tau0 + d * t0
         tau_hi = tau0 + d * t1
         if not tau_lo > 0.0:
-            return np.inf, np.inf, np.inf
-        s_lo = max(dist * (1.0 - SLACK) - r, 0.0) / (tau_hi * (1.0 + SLACK))
+            return np.inf, np.inf, np.inf, np.inf, 0.0, np.inf, np.inf
+        # farthest point of the piece from c, and its largest in-plane offset
+        # (both convex in t: at an end of the piece)
+        x0 = wx - t0 * ux
+        y0 = wy - t0 * uy
+        z0 = wz - t0 * uz
+        x1 = wx - t1 * ux
+        y1 = wy - t1 * uy
+        z1 = wz - t1 * uz
+        pxy = math.sqrt(max(x0 * x0 + y0 * y0, x1 * x1 + y1 * y1))
+        dmax = math.sqrt(max(x0 * x0 + y0 * y0 + z0 * z0, x1 * x1 + y1 * y1 + z1 * z1))
+        dlo = dist * (1.0 - SLACK) - r
+        pe = 1.0
+        pp = 1.0
+        if dlo > 0.0:
+            pe = min(1.0, (pxy * (1.0 + SLACK) + r) / dlo)
+            pp = min(1.0, rho / dlo)
+        s_lo = max(dlo, 0.0) / (tau_hi * (1.0 + SLACK))
+        s_hi = (dmax * (1.0 + SLACK) + r) / (tau_lo * (1.0 - SLACK))
         ln = t1 - t0
-        g += ln * _slope_sup(s_lo, n, sigma, norm, k1) / (tau_lo * tau_lo)
+        g += ln * pe * _slope_sup(s_lo, n, sigma, norm, k1) / (tau_lo * tau_lo)
         h += ln * _curvature_sup(s_lo, n, sigma, norm, k2) / (tau_lo * tau_lo * tau_lo)
         if s_lo < sigma:           # k falls with s: k(s') <= k(s_lo)
-            f += ln * norm * (1.0 - s_lo * s_lo / (sigma * sigma)) ** (n // 2) / tau_lo
-    return g, h, f
+            u_lo = s_lo * s_lo / (sigma * sigma)
+            u_hi = min(s_hi * s_hi / (sigma * sigma), 1.0)
+            f += ln * norm * (1.0 - u_lo) ** m / tau_lo
+            if m >= 2:
+                bh += ln * cn * (1.0 - u_lo) ** (m - 1) / (tau_lo * tau_lo * tau_lo)
+                bl += ln * cn * (1.0 - u_hi) ** (m - 1) / (tau_hi * tau_hi * tau_hi)
+                sec = ln * cn * _second_sup(u_lo, u_hi, m) / (tau_lo * tau_lo * tau_lo)
+                a += sec * pe * pe
+                ap += sec * pp * pp
+    if m < 2:
+        bh = np.inf
+    return g, h, f, bh, bl, a, ap
+
+
+@kernel
+def _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
+    """Upper bound over the disc of ``|∇ψ(p − a)| + |∇ψ(p − b)|``, ψ the integrand
+    at the segment's ends ``a`` and ``b`` (radii τ0 and τ1)."""
+    L = seg[i, LEN]
+    out = 0.0
+    for end in range(2):
+        t = 0.0 if end == 0 else L
+        tau = seg[i, TAU0] + seg[i, DELTA] * t
+        ex = cx - seg[i, AX] - t * seg[i, UX]
+        ey = cy - seg[i, AY] - t * seg[i, UY]
+        ez = cz - seg[i, AZ] - t * seg[i, UZ]
+        d = math.sqrt(ex * ex + ey * ey + ez * ez)
+        s_lo = max(d * (1.0 - SLACK) - r, 0.0) / (tau * (1.0 + SLACK))
+        out += _slope_sup(s_lo, n, sigma, norm, k1) / (tau * tau)
+    return out
+
+
+#: largest ``2 a b + a²`` over ``a² + b² = 1`` (the eigenvalue (1 + √5)/2 of [[1, 1], [1, 0]])
+GOLDEN = 1.6180339887498950
 
 
 @kernel
 def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
-    """Slope and curvature bounds of the field over discs of the plane ``z``.
+    """In-plane slope and curvature bounds of the field over discs of the plane ``z``.
 
     Parameters
     ----------
@@ -169,9 +246,12 @@ def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
     Returns
     -------
     G : (c,) float64, 1/mm
-        Upper bound of ``‖∇F‖`` over each disc (0: no support reaches it).
+        Upper bound of the in-plane gradient's norm ``‖∇_xy F‖`` over each
+        disc (0: no support reaches it).
     H : (c,) float64, 1/mm²
-        Upper bound of the Hessian's norm over each disc (inf: none).
+        Upper bound of the norm of the in-plane Hessian ``∇²_xy F`` (the
+        2 x 2 block of the second derivatives in x and y) over each disc
+        (inf: none).
     U : (c,) float64
         Upper bound of ``F`` over each disc (the integrand ``k(s)/tau`` is at
         most ``k(s_lo)/tau_min`` on each piece).
@@ -186,16 +266,31 @@ def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
         g = 0.0
         h = 0.0
         u = 0.0
+        bh = 0.0
+        top = 0.0
+        mag = 0.0
         for q in range(ids.shape[0]):
             i = ids[q]
             ta, tb = _reach_interval(seg, i, cx[j], cy[j], z, r[j], sigma)
             if not tb > ta:
                 continue
-            gi, hi, ui = _piece_bounds(seg, i, cx[j], cy[j], z, r[j], ta, tb, n, sigma, norm, k1, k2)
+            gi, hi, ui, bhi, bli, ai, api = _piece_bounds(seg, i, cx[j], cy[j], z, r[j], ta, tb, n, sigma,
+                                                          norm, k1, k2)
             g += gi
             h += hi
             u += ui
+            bh += bhi
+            # this segment's in-plane second derivatives lie in [-bh, up]
+            up = ai - bli
+            mag += ai + bli
+            if seg[i, DELTA] == 0.0:   # untapered: the axial derivatives are end terms
+                w = _end_slopes(seg, i, cx[j], cy[j], z, r[j], n, sigma, norm, k1)
+                up = min(up, max(api - bli, 0.0) + GOLDEN * w)
+                mag += api + w
+            top += up
+        # split Hessian: every in-plane second derivative lies in [-bh, top]
+        split = max(bh, top + 4.0 * SLACK * mag) * (1.0 + SLACK)
         G[j] = g * (1.0 + SLACK)
-        H[j] = h * (1.0 + SLACK)
+        H[j] = min(h * (1.0 + SLACK), split)
         U[j] = u * (1.0 + SLACK)
     return G, H, U

@@ -8,9 +8,10 @@ signs give -- or the leaf's diagonal is at most the tolerance. The proofs use
 the field and its gradient at the cell's centre ``c`` and sound bounds over
 the disc of radius ``r`` (half the diagonal) around it
 (:mod:`slicer._kernels.cellbounds`, docs/math.md §10): with ``G`` a bound of
-``‖∇F‖`` and ``H`` of the Hessian's norm over the disc,
+the in-plane slope ``‖∇_xy F‖`` and ``H`` of the in-plane Hessian's norm over
+the disc,
 
-* ``|F(p) − F(c)| <= r min(G, ‖∇F(c)‖ + r H / 2)`` (settled when this keeps
+* ``|F(p) − F(c)| <= r min(G, ‖∇_xy F(c)‖ + r H / 2)`` (settled when this keeps
   ``F`` on one side of 1);
 * ``|∂F/∂x(p) − ∂F/∂x(c)| <= r H`` (simple when neither partial can vanish).
 
@@ -37,12 +38,8 @@ from .._kernels.contours import chain_rings
 from ..errors import OptionError
 from ..field import point_grid, support_boxes
 from ..skeleton import Skeleton
-from .roots import _field, solve_crossings
+from .roots import FIELD_SLACK, _field, solve_crossings
 from .simplify import CHORD_FRACTION
-
-#: relative error budget of one closed-form field evaluation (docs/math.md §2.6
-#: and the stiff-case suite: ~1e-13); cells are settled only beyond it
-FIELD_SLACK = 1e-9
 
 #: root cells have this many times the median radius of the plane's struts
 ROOT_CELL_RADII = 0.5
@@ -94,7 +91,12 @@ class _Bounds:
 
     def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
         """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
-        and a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none)."""
+        a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none),
+        lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over it, (c, 2) float64,
+        1/mm (0: none), and the Taylor data of its centre: the field, (c,)
+        float64 (0 where the bound ``U`` already puts the cell outside: not
+        evaluated), the in-plane gradient, (c, 2) float64, 1/mm, and the bounds
+        ``G`` and ``H`` over the disc."""
         sk = self.skel
         G, H, U = disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
         # the bound of F over the disc stays below 1 (or no support reaches it): outside, no evaluation
@@ -131,7 +133,36 @@ class _Bounds:
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             glo = gn - gs
             kappa = np.where(glo > 0, H / np.where(glo > 0, glo, 1.0), np.inf)
-        return state, kappa
+            slope = np.maximum(np.column_stack([np.abs(gx), np.abs(gy)]) - gs[:, None], 0.0)
+        slope[~np.isfinite(slope)] = 0.0
+        return state, kappa, slope, (f, np.column_stack([gx, gy]), G, H)
+
+    @staticmethod
+    def settle_children(taylor, r: float, offset: np.ndarray) -> np.ndarray:
+        """IN or OUT (else -1) of child cells from their parent's Taylor data, with no
+        evaluation: over the child's disc (radius ``r``, inside the parent's disc of
+        radius ``2 r``), ``F(p)`` lies within ``r ‖∇F(c)‖ + H (2 r)² / 2`` of the
+        parent's linear model at the child's centre ``c + offset``.
+
+        Parameters
+        ----------
+        taylor : tuple
+            The parents' ``(f, grad, G, H)`` (:meth:`classify`), one row per child.
+        r : float, mm
+            Half diagonal of the children (with its slack).
+        offset : (c, 2) float64, mm
+            Child centre minus parent centre.
+        """
+        f, g, G, H = taylor
+        gn = np.hypot(g[:, 0], g[:, 1])
+        with np.errstate(invalid="ignore", over="ignore"):
+            lin = f + g[:, 0] * offset[:, 0] + g[:, 1] * offset[:, 1]
+            spread = r * gn + 2.0 * H * r * r
+            slack = FIELD_SLACK * (1.0 + np.abs(f) + 2.0 * r * (gn + G))
+        state = np.full(f.size, -1, np.int8)
+        state[lin + spread + slack < 1.0] = OUT
+        state[lin - spread - slack > 1.0] = IN
+        return state
 
 
 def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int, levels: int):
@@ -144,25 +175,51 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
     state : (l,) int8
     kappa : (l,) float64
         Bound of the contour's curvature in each leaf, 1/mm.
+    slope : (l, 2) float64
+        Lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over each leaf, 1/mm.
     cells : int
         Cells examined.
+    known : ((k,) int64, (k,) int64, (k,) float64)
+        Lattice points ``(x, y)`` where the field is known: the centres of
+        the split cells (corners of their children), and its values there.
     """
     iy, ix = np.divmod(np.arange(nx * ny, dtype=np.int64), nx)
     out = []
+    known = []
     cells = 0
+    parent = None
     for lev in range(levels + 1):
         if ix.size == 0:
             break
         s = s0 / 2.0 ** lev
-        r = np.full(ix.size, 0.5 * math.sqrt(2.0) * s * (1.0 + SLACK))
-        state, kappa = bounds.classify(x0 + (ix + 0.5) * s, y0 + (iy + 0.5) * s, r)
+        rr = 0.5 * math.sqrt(2.0) * s * (1.0 + SLACK)
+        cx, cy = x0 + (ix + 0.5) * s, y0 + (iy + 0.5) * s
+        state = np.full(ix.size, -1, np.int8)
+        kappa = np.full(ix.size, np.inf)
+        slope = np.zeros((ix.size, 2))
+        f = np.full(ix.size, np.nan)
+        if parent is not None:            # children proven IN or OUT by their parent's data
+            pc, taylor = parent
+            state = bounds.settle_children(taylor, rr, np.column_stack([cx - pc[:, 0], cy - pc[:, 1]]))
+        rest = np.flatnonzero(state < 0)
+        # (ix + 0.5) s is (ix unit + unit/2) h exactly (s = unit h, a power of two):
+        # a split cell's centre is bit for bit its children's common corner
+        st_r, kappa[rest], slope[rest], taylor = bounds.classify(cx[rest], cy[rest], np.full(rest.size, rr))
+        state[rest] = st_r
+        f[rest] = taylor[0]
         cells += ix.size
         if lev == levels:
             state[state < 0] = SMALL
         done = state >= 0
         unit = 1 << (levels - lev)
-        out.append((ix[done] * unit, iy[done] * unit, unit, state[done], kappa[done]))
+        out.append((ix[done] * unit, iy[done] * unit, unit, state[done], kappa[done], slope[done]))
         split = ~done
+        if unit >= 2:
+            known.append((ix[split] * unit + unit // 2, iy[split] * unit + unit // 2, f[split]))
+        # split cells were all classified (settled children are leaves): their Taylor data
+        ks = np.flatnonzero(~done[rest])
+        parent = (np.repeat(np.column_stack([cx[rest[ks]], cy[rest[ks]]]), 4, axis=0),
+                  tuple(np.repeat(a[ks], 4, axis=0) for a in taylor))
         ix = (2 * ix[split][:, None] + np.array([0, 1, 0, 1])).ravel()
         iy = (2 * iy[split][:, None] + np.array([0, 0, 1, 1])).ravel()
     X0 = np.concatenate([o[0] for o in out])
@@ -170,7 +227,27 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
     size = np.concatenate([np.full(o[0].size, o[2], np.int64) for o in out])
     state = np.concatenate([o[3] for o in out])
     kappa = np.concatenate([o[4] for o in out])
-    return X0, Y0, X0 + size, Y0 + size, state, kappa, cells
+    slope = np.concatenate([o[5] for o in out])
+    kx = np.concatenate([k[0] for k in known] + [np.zeros(0, np.int64)])
+    ky = np.concatenate([k[1] for k in known] + [np.zeros(0, np.int64)])
+    kf = np.concatenate([k[2] for k in known] + [np.zeros(0)])
+    return X0, Y0, X0 + size, Y0 + size, state, kappa, slope, cells, (kx, ky, kf)
+
+
+def _known_values(px, py, kx, ky, kf, ymax: int) -> np.ndarray:
+    """Field at lattice points ``(px, py)`` where ``(kx, ky)`` holds it (``kf``), NaN elsewhere."""
+    out = np.full(px.size, np.nan)
+    if kx.size == 0:
+        return out
+    big = np.int64(ymax + 1)
+    key = kx * big + ky
+    order = np.argsort(key)
+    key = key[order]
+    want = px * big + py
+    j = np.minimum(np.searchsorted(key, want), key.size - 1)
+    hit = key[j] == want
+    out[hit] = kf[order[j[hit]]]
+    return out
 
 
 def _edge_points(line: np.ndarray, keys_line: np.ndarray, keys_pos: np.ndarray,
@@ -263,8 +340,11 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
         Leaves are split until their diagonal is at most ``tol``; vertices are
         root-solved to ``tol`` along leaf edges.
     stats : dict, optional
-        Updated with ``evaluations``, ``cells``, ``leaves``, ``small_leaves``,
-        ``vertices``, ``unbracketed``.
+        Updated with ``evaluations`` (all field evaluations, points) and
+        their split by stage: ``cell_evaluations`` (cell centres, with the
+        gradient), ``corner_evaluations`` (leaf corners on the walks) and
+        ``root_evaluations`` (root solves of the crossings); ``cells``,
+        ``leaves``, ``small_leaves``, ``vertices``, ``unbracketed``.
     root_cell : float, optional, mm
         Side of the root cells (default: ``ROOT_CELL_RADII`` times the median
         radius of the plane's struts).
@@ -281,7 +361,8 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
     list of (n_q, 2) float64
         Outer rings counter-clockwise, holes clockwise (not yet refined).
     """
-    st = {"evaluations": 0, "cells": 0, "leaves": 0, "small_leaves": 0, "vertices": 0, "unbracketed": 0}
+    st = {"evaluations": 0, "cell_evaluations": 0, "corner_evaluations": 0, "root_evaluations": 0,
+          "cells": 0, "leaves": 0, "small_leaves": 0, "vertices": 0, "unbracketed": 0}
     rings = []
     ids = plane_segments(skel, z)
     if ids.size:
@@ -349,19 +430,23 @@ def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray
     """:func:`guaranteed_rings` for a plane that some supports meet."""
     x0, y0, s0, nx, ny, levels = _root_grid(skel, ids, tol, root_cell)
     bounds = _Bounds(skel, z, ids, tol)
-    X0, Y0, X1, Y1, state, kappa, cells = _quadtree(bounds, x0, y0, s0, nx, ny, levels)
+    X0, Y0, X1, Y1, state, kappa, slope, cells, known = _quadtree(bounds, x0, y0, s0, nx, ny, levels)
     st["cells"] += cells
     st["leaves"] += X0.size
     st["small_leaves"] += int((state == SMALL).sum())
     st["evaluations"] += bounds.evaluations
+    st["cell_evaluations"] += bounds.evaluations
     act = np.flatnonzero(state >= SIMPLE)
     if act.size == 0:
         return []
     px, py, leaf, point = _boundary_walks(X0[act], Y0[act], X1[act], Y1[act])
     h = s0 / 2.0 ** levels
     wx, wy = x0 + px * h, y0 + py * h
-    f = _field(skel, np.column_stack([wx, wy, np.full(px.size, z)]))[0]
-    st["evaluations"] += px.size
+    f = _known_values(px, py, *known, ny << levels)
+    todo = np.flatnonzero(np.isnan(f))
+    f[todo] = _field(skel, np.column_stack([wx[todo], wy[todo], np.full(todo.size, z)]))[0]
+    st["evaluations"] += todo.size
+    st["corner_evaluations"] += todo.size
     ukey, succ, exit_leaf = _pair_crossings(leaf, point, f >= 1.0, px.size)
     if ukey.size == 0:
         return []
@@ -372,8 +457,12 @@ def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray
     za = np.full(ui.size, z)
     A = np.column_stack([wx[ui], wy[ui], za])
     B = np.column_stack([wx[uo], wy[uo], za])
-    _, tt, ok, ne = solve_crossings(skel, A, B, tol, fa=f[ui], fb=f[uo])
+    # the leaf that walked each elementary edge holds it: its slope bound along the edge
+    horizontal = py[ui] == py[uo]
+    edge_slope = np.where(horizontal, slope[act[exit_leaf], 0], slope[act[exit_leaf], 1])
+    _, tt, ok, ne = solve_crossings(skel, A, B, tol, fa=f[ui], fb=f[uo], slope=edge_slope)
     st["evaluations"] += ne
+    st["root_evaluations"] += ne
     st["unbracketed"] += int((~ok).sum())
     tt = np.clip(tt, 1e-6, 1.0 - 1e-6)            # keep vertices off the lattice points: rings stay simple
     verts = (A + tt[:, None] * (B - A))[:, :2]

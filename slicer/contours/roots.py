@@ -14,6 +14,10 @@ from ..skeleton import Skeleton
 #: the bracket at least every other step, so 200 is far beyond need)
 MAX_ITER = 200
 
+#: relative error budget of one closed-form field evaluation (docs/math.md §2.6
+#: and the stiff-case suite: ~1e-13)
+FIELD_SLACK = 1e-9
+
 #: batches smaller than this are evaluated on one thread: waking the pool
 #: costs more than it saves, and on a loaded machine a parallel launch can
 #: wait a whole scheduler time slice for its second thread
@@ -33,7 +37,8 @@ def _check_tol(tol) -> float:
 
 
 def solve_crossings(skel: Skeleton, a: np.ndarray, b: np.ndarray, tol: float,
-                    fa: np.ndarray | None = None, fb: np.ndarray | None = None):
+                    fa: np.ndarray | None = None, fb: np.ndarray | None = None,
+                    slope: np.ndarray | None = None):
     """Points where ``F = 1`` on segments ``a -> b``, to ``tol`` mm.
 
     Each segment must bracket the surface: ``F(a) >= 1 > F(b)``. The bracket
@@ -41,7 +46,14 @@ def solve_crossings(skel: Skeleton, a: np.ndarray, b: np.ndarray, tol: float,
     ``tol/2`` inside the bracket, with a bisection step whenever two steps
     fail to halve it, until it is at most ``tol`` long; the answer is the
     secant point of the final bracket, so it is within ``tol`` of a root.
-    Every iteration evaluates the field at all unfinished segments in one
+    Where ``slope`` proves ``|dF/dl| >= slope`` all along a segment (l its
+    arc length, mm), a value ``F(t)`` also proves the root (then unique)
+    within ``(|F(t) − 1| + ε)/slope`` of ``t`` on the side its sign gives
+    (ε: the evaluation's error budget, ``FIELD_SLACK (1 + |F|)``); once the
+    intersection of these intervals with the bracket is at most ``tol``
+    long, its midpoint is the answer, within ``tol/2`` of the root (no
+    evaluation at all where the values at the ends already prove it). Every
+    iteration evaluates the field at all unfinished segments in one
     compiled batch.
 
     Parameters
@@ -52,6 +64,8 @@ def solve_crossings(skel: Skeleton, a: np.ndarray, b: np.ndarray, tol: float,
     tol : float, mm
     fa, fb : (n,) float64, optional
         Field at ``a`` and ``b`` if already known.
+    slope : (n,) float64, optional, 1/mm
+        Lower bound of ``|dF/dl|`` along each segment (0 or absent: none).
 
     Returns
     -------
@@ -87,8 +101,21 @@ def solve_crossings(skel: Skeleton, a: np.ndarray, b: np.ndarray, tol: float,
         tol_t = np.where(length > 0, tol / length, 1.0)
     width1 = hi - lo                      # bracket width one and two steps ago
     width2 = hi - lo
-    act = np.flatnonzero(bracketed & (length > tol))
+    # interval proved by the slope bound, in t; (clo, chi) = (0, 1) without one
+    clo = np.zeros(n)
+    chi = np.ones(n)
+    if slope is not None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            reach_t = np.where((slope > 0) & (length > 0), 1.0 / (slope * length), np.inf)
+        ea = (np.abs(glo) + FIELD_SLACK * (1.0 + np.abs(fa))) * reach_t
+        eb = (np.abs(ghi) + FIELD_SLACK * (1.0 + np.abs(fb))) * reach_t
+        chi = np.minimum(chi, ea)
+        clo = np.maximum(clo, 1.0 - eb)
+    proved = bracketed & ((chi - clo) * length <= tol)
+    act = np.flatnonzero(bracketed & (length > tol) & ~proved)
     t[bracketed] = np.where(glo[bracketed] == 0.0, 0.0, 0.5)
+    pf = np.flatnonzero(proved & (length > tol) & (glo != 0.0))
+    t[pf] = 0.5 * (clo[pf] + chi[pf])
     it = 0
     while act.size and it < MAX_ITER:
         it += 1
@@ -118,7 +145,15 @@ def solve_crossings(skel: Skeleton, a: np.ndarray, b: np.ndarray, tol: float,
         side[act] = np.where(up, 1, -1)
         exact = g == 0.0
         t[act] = tm
+        if slope is not None:
+            e = (np.abs(g) + FIELD_SLACK * (1.0 + np.abs(f))) * reach_t[act]
+            chi[act] = np.minimum(chi[act], np.where(up, tm + e, tm))
+            clo[act] = np.maximum(clo[act], np.where(up, tm, tm - e))
+        pr = (np.minimum(chi[act], hi[act]) - np.maximum(clo[act], lo[act])) * length[act] <= tol
         done = exact | ((hi[act] - lo[act]) * length[act] <= tol)
+        byslope = act[pr & ~done]
+        if byslope.size:
+            t[byslope] = 0.5 * (np.minimum(chi[byslope], hi[byslope]) + np.maximum(clo[byslope], lo[byslope]))
         fin = act[done & ~exact]
         if fin.size:
             gl, gh = glo[fin], ghi[fin]
@@ -126,7 +161,7 @@ def solve_crossings(skel: Skeleton, a: np.ndarray, b: np.ndarray, tol: float,
             # still of the right signs, so it stays inside the bracket)
             ts = lo[fin] + (hi[fin] - lo[fin]) * gl / (gl - gh)
             t[fin] = np.clip(ts, lo[fin], hi[fin])
-        act = act[~done]
+        act = act[~(done | pr)]
     if act.size:   # pragma: no cover - the bisection safeguard makes this unreachable
         t[act] = 0.5 * (lo[act] + hi[act])
     return a + t[:, None] * d, t, bracketed, evals

@@ -34,7 +34,9 @@ def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
     z : float, mm
     tol : float, mm
     stats : dict, optional
-        ``refined`` and ``evaluations`` are increased.
+        ``refined`` and ``evaluations`` are increased, and the latter's split:
+        ``check_evaluations`` (chord quarter points and midpoints) and
+        ``projection_evaluations`` (new vertices put on the contour).
     max_rounds : int
         Rounds of splitting (each checks the new chords' midpoints; a chord
         found within the tolerance is not checked again).
@@ -54,6 +56,7 @@ def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
     done = np.concatenate(certified) if certified is not None else np.zeros(xy.shape[0], bool)
     added = 0
     evals = 0
+    checks = 0
     for _ in range(max_rounds):
         starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
         nxt = np.arange(xy.shape[0]) + 1
@@ -71,6 +74,7 @@ def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
         dist = np.full(xy.shape[0], 0.0)
         dist[todo] = plane_distance(skel, m3, z)[0].reshape(-1, 3).max(axis=1)
         evals += m3.shape[0]
+        checks += m3.shape[0]
         bad = todo[~(dist[todo] <= CHORD_FRACTION * tol)]
         done[todo] = True                    # checked: fine, or split below
         done[bad] = False
@@ -103,6 +107,8 @@ def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
     if stats is not None:
         stats["refined"] = stats.get("refined", 0) + added
         stats["evaluations"] = stats.get("evaluations", 0) + evals
+        stats["check_evaluations"] = stats.get("check_evaluations", 0) + checks
+        stats["projection_evaluations"] = stats.get("projection_evaluations", 0) + evals - checks
     bounds = np.concatenate([[0], np.cumsum(sizes)])
     return [xy[bounds[q]:bounds[q + 1]] for q in range(len(rings))]
 
