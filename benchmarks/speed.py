@@ -21,6 +21,10 @@ Jobs (full size; ``--quick`` shrinks every one to a smoke test of a few seconds)
     512 x 512 x 1024, the jellyfish at 512 x 512 x 1024 and x 2048.
 ``render_micro``, ``render_jelly``
     ``slicer.rendering.render`` of the samples at 700 x 700, iso view.
+``ctb``
+    The jellyfish sliced for an Elegoo Saturn 3 Ultra (11520 x 5120 px) into a
+    Chitubox CTB file by the ``slice`` command: the whole process, as
+    ``octet``; printer-format writing at a real plate's size.
 
 Every job runs in a fresh subprocess with ``PYTHONPATH`` set to the tree
 under test and a neutral working folder, so ``--baseline`` compares two
@@ -53,8 +57,9 @@ SIZES = {
     "jelly2x": ((512, 2048), (48, 96)),
     "render_micro": ((700,), (40,)),
     "render_jelly": ((700,), (40,)),
+    "ctb": (("elegoo-saturn-3-ultra",), ("elegoo-saturn",)),
 }
-JOBS = ("octet", "png", "micro", "jelly", "jelly2x", "render_micro", "render_jelly")
+JOBS = ("octet", "png", "micro", "jelly", "jelly2x", "render_micro", "render_jelly", "ctb")
 SAMPLE = {"micro": "microstructure", "jelly": "jellyfish", "jelly2x": "jellyfish",
           "render_micro": "microstructure", "render_jelly": "jellyfish"}
 
@@ -181,6 +186,18 @@ def _octet(tree: Path, size, threads: int, work: Path) -> dict:
             "write_seconds": float(m.group(3)), "layers_written": n_files}
 
 
+def _printer_file(tree: Path, size, threads: int, work: Path) -> dict:
+    """One whole-process run of the jellyfish sliced into a CTB file for printer ``size[0]``."""
+    out = work / "jellyfish.ctb"
+    wall, text = _run([sys.executable, "-m", "slicer", "slice", tree / "sample_lattices" / "jellyfish.json",
+                       "-o", out.name, "--printer", size[0], "--force", "--threads", threads], tree, threads, work)
+    m = _SLICE_LINE.search(text)
+    if m is None:
+        raise RuntimeError(f"unexpected slice output: {text!r}")
+    return {"seconds": wall, "trace_seconds": float(m.group(1)), "evaluations": int(m.group(2).replace(",", "")),
+            "write_seconds": float(m.group(3)), "bytes": out.stat().st_size}
+
+
 def measure(trees: dict, jobs, repeat: int, threads: int, quick: bool, log=print) -> list[dict]:
     """Run every job ``repeat`` times on every tree; returns one row per (job, tree)."""
     rows = []
@@ -199,6 +216,8 @@ def measure(trees: dict, jobs, repeat: int, threads: int, quick: bool, log=print
                 for _ in range(repeat):
                     if job == "octet":
                         r = _octet(tree, size, threads, work)
+                    elif job == "ctb":
+                        r = _printer_file(tree, size, threads, work)
                     else:
                         _, text = _run(_worker_cmd(job, *size, threads), tree, threads, work)
                         r = json.loads(text.strip().splitlines()[-1])

@@ -20,12 +20,12 @@ def test_speed_quick_json_shape(tmp_path):
     assert str(tmp_path) not in json.dumps(doc)          # no local paths
     assert {"cpu", "cores", "python", "numba"} <= set(doc["machine"])
     jobs = {r["job"]: r for r in doc["rows"]}
-    assert set(jobs) == {"octet", "png", "micro", "jelly", "jelly2x", "render_micro", "render_jelly"}
+    assert set(jobs) == {"octet", "png", "micro", "jelly", "jelly2x", "render_micro", "render_jelly", "ctb"}
     for r in doc["rows"]:
         assert r["tree"] == "current" and r["threads"] == 1
         assert len(r["runs_seconds"]) == 2 and all(s > 0 for s in r["runs_seconds"])
         assert min(r["runs_seconds"]) <= r["median_seconds"] <= max(r["runs_seconds"])
-    for job in ("octet", "micro", "jelly", "jelly2x", "render_micro", "render_jelly"):
+    for job in ("octet", "micro", "jelly", "jelly2x", "render_micro", "render_jelly", "ctb"):
         assert jobs[job]["evaluations"] > 0, job
     # the evaluation count does not depend on the run
     assert "evaluations_vary" not in jobs["micro"]

@@ -23,8 +23,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import prange
 
-from .._jit import kernel
+from .._jit import kernel, parallel_kernel
+from .borrow import borrow
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 from .raysupport import kprime_max
 
@@ -227,7 +229,7 @@ def _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
 GOLDEN = 1.6180339887498950
 
 
-@kernel
+@parallel_kernel
 def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
     """In-plane slope and curvature bounds of the field over discs of the plane ``z``.
 
@@ -258,11 +260,13 @@ def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
     """
     k1 = kprime_max(n, sigma, norm)
     k2 = kernel_curvature_max(n, sigma, norm)
+    seg = borrow(seg)        # slicer._kernels.borrow: arguments outlive the call
+    ids = borrow(ids)
     nc = cx.shape[0]
     G = np.zeros(nc)
     H = np.zeros(nc)
     U = np.zeros(nc)
-    for j in range(nc):
+    for j in prange(nc):
         g = 0.0
         h = 0.0
         u = 0.0

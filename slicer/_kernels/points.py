@@ -7,6 +7,7 @@ import numpy as np
 from numba import prange
 
 from .._jit import parallel_kernel
+from .borrow import borrow, keep_alive
 from .field import SCRATCH, segment_eval
 
 
@@ -40,8 +41,10 @@ def field_at_points(points, seg, offsets, ids, origin, cell, dims, m, inv_s2, no
     f = np.zeros(k)
     g = np.zeros((k, 3))
     nchunk = (k + 255) // 256
+    seg = borrow(seg)        # slicer._kernels.borrow: arguments outlive the launch
     for c in prange(nchunk):
-        scratch = np.empty(SCRATCH)
+        own = np.empty(SCRATCH)
+        scratch = borrow(own)
         for p in range(c * 256, min(k, (c + 1) * 256)):
             px = points[p, 0]
             py = points[p, 1]
@@ -66,4 +69,5 @@ def field_at_points(points, seg, offsets, ids, origin, cell, dims, m, inv_s2, no
             g[p, 0] = sx
             g[p, 1] = sy
             g[p, 2] = sz
+        keep_alive((own,))
     return f, g
