@@ -85,8 +85,25 @@ class PointGrid:
 _GRID_CACHE: "weakref.WeakKeyDictionary[Skeleton, tuple[np.ndarray, PointGrid]]" = weakref.WeakKeyDictionary()
 
 
+def _binned_entries(lo: np.ndarray, hi: np.ndarray, ext: np.ndarray, dims: np.ndarray) -> int:
+    """Upper bound of the cell-list entries of boxes ``lo``..``hi`` (each (n, 3)) on a
+    grid of ``dims`` cells over ``ext``: each box covers at most ceil(size / cell) + 1
+    cells per axis."""
+    cell = ext / dims
+    per_axis = np.minimum(np.ceil((hi - lo) / cell) + 1.0, dims)
+    return int(np.prod(per_axis, axis=1).sum())
+
+
 def point_grid(skel: Skeleton, max_cells: int = 2_000_000) -> tuple[np.ndarray, PointGrid]:
-    """Segment table and support grid of a skeleton (cached per skeleton)."""
+    """Segment table and support grid of a skeleton (cached per skeleton).
+
+    Cells are half the median support diameter (a point then visits few
+    segments whose support cannot reach it), coarsened until the grid has at
+    most ``max_cells`` cells and its lists at most ``max(32 n, max_cells)``
+    entries for ``n`` segments. The field does not depend on the grid: a
+    point sums the segments of its cell in segment order, and a segment whose
+    support misses the point adds exactly 0.
+    """
     hit = _GRID_CACHE.get(skel)
     if hit is not None:
         return hit
@@ -95,11 +112,11 @@ def point_grid(skel: Skeleton, max_cells: int = 2_000_000) -> tuple[np.ndarray, 
     blo = lo.min(axis=0)
     bhi = hi.max(axis=0)
     ext = np.maximum(bhi - blo, 1e-300)
-    # cell edge ~ median support diameter, bounded so the grid stays small
     diam = np.median((hi - lo).max(axis=1))
-    cell = max(diam, float(np.cbrt(np.prod(ext) / max_cells)))
+    cell = max(0.5 * diam, float(np.cbrt(np.prod(ext) / max_cells)))
     dims = np.maximum(1, np.ceil(ext / cell).astype(np.int64))
-    while np.prod(dims) > max_cells:
+    budget = max(32 * skel.n_segments, max_cells)
+    while np.prod(dims) > max_cells or (np.prod(dims) > 1 and _binned_entries(lo, hi, ext, dims) > budget):
         cell *= 1.25
         dims = np.maximum(1, np.ceil(ext / cell).astype(np.int64))
     cellv = ext / dims

@@ -14,9 +14,13 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from sample_lattices import load_sample
 from slicer import Skeleton
-from slicer._kernels.cellbounds import disc_bounds
-from slicer.field import evaluate, point_grid
+from slicer._kernels.binning import bin_boxes
+from slicer._kernels.cellbounds import disc_bounds, disc_bounds_binned
+from slicer._kernels.points import field_at_points
+from slicer.contours.cells import _bin_segments, _root_grid, plane_segments
+from slicer.field import evaluate, point_grid, segment_table, support_boxes
 
 #: step of the central differences, mm; their error (h² times the third
 #: derivative, and rounding over h) is far below FD_MARGIN
@@ -120,3 +124,49 @@ def test_bounds_are_close_on_a_strut_surface():
     G, H, gn, hn = _check(s, np.array([0.0, 1.0, 0.0]), 0.01, 0)
     assert abs(hn - 1.556) < 0.1               # it grows by ~7/mm across the disc
     assert H <= 2.0 * 1.556
+
+
+def test_binned_bounds_are_the_bounds_over_every_segment_of_the_plane():
+    """Each disc looks only at the segments binned near its centre, and gets the
+    bounds of all the plane's segments to the bit (a segment left out could only
+    be one whose support cannot reach the disc)."""
+
+    skel = load_sample("bcc_3x3x3_graded")
+    table = point_grid(skel)[0]
+    lo, hi = skel.support_bounds()
+    rng = np.random.default_rng(7)
+    for z in np.linspace(lo[2], hi[2], 7)[1:-1]:
+        ids = plane_segments(skel, z)
+        x0, y0, s0, nx, ny, _ = _root_grid(skel, ids, 1e-3, None)
+        bx0, by0, side, bnx, bny, rmax, offsets, lists = _bin_segments(skel, ids, x0, y0, s0, nx, ny)
+        assert lists.size < ids.size * nx * ny            # the bins do leave segments out
+        k = 3000
+        cx = x0 + rng.random(k) * nx * s0
+        cy = y0 + rng.random(k) * ny * s0
+        r = rmax * rng.random(k) ** 3
+        args = (z, r, skel.degree, skel.sigma, skel.normalisation)
+        want = disc_bounds(table, ids, cx, cy, *args)
+        got = disc_bounds_binned(table, offsets, lists, bx0, by0, side, bnx, bny, cx, cy, *args)
+        for a, b in zip(want, got):
+            assert np.array_equal(a, b)
+        assert (want[0] > 0).any() and (want[0] == 0).any()   # discs both near and far from the struts
+
+
+def test_the_field_does_not_depend_on_the_point_grid():
+    """A point sums the segments of its cell in segment order, and a segment whose
+    support misses it adds exactly 0: any grid gives the same bits."""
+
+    skel = load_sample("octet_2x2x2")
+    table = segment_table(skel)
+    lo, hi = support_boxes(skel)
+    blo, ext = lo.min(0), hi.max(0) - lo.min(0)
+    p = blo + ext * np.random.default_rng(3).random((20000, 3))
+    out = []
+    for n in (1, 3, 8):
+        dims = np.array([n, n, n], np.int64)
+        off, ids = bin_boxes(lo, hi, np.arange(skel.n_segments, dtype=np.int64), blo, ext / dims, dims)
+        out.append(field_at_points(p, table, off, ids, blo, ext / dims, dims, skel.degree // 2,
+                                   1.0 / skel.sigma ** 2, skel.normalisation, True))
+    assert (out[0][0] > 1.0).any()
+    for f, g in out[1:]:
+        assert np.array_equal(f, out[0][0]) and np.array_equal(g, out[0][1])

@@ -229,6 +229,44 @@ def _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
 GOLDEN = 1.6180339887498950
 
 
+@kernel
+def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2):
+    """:func:`disc_bounds` of one disc from the segments ``lst[a:b]`` (in that
+    order; those whose support cannot reach the disc add nothing).
+
+    Returns
+    -------
+    G, H, U : float
+    """
+    g = 0.0
+    h = 0.0
+    u = 0.0
+    bh = 0.0
+    top = 0.0
+    mag = 0.0
+    for q in range(a, b):
+        i = lst[q]
+        ta, tb = _reach_interval(seg, i, cx, cy, z, r, sigma)
+        if not tb > ta:
+            continue
+        gi, hi, ui, bhi, bli, ai, api = _piece_bounds(seg, i, cx, cy, z, r, ta, tb, n, sigma, norm, k1, k2)
+        g += gi
+        h += hi
+        u += ui
+        bh += bhi
+        # this segment's in-plane second derivatives lie in [-bh, up]
+        up = ai - bli
+        mag += ai + bli
+        if seg[i, DELTA] == 0.0:   # untapered: the axial derivatives are end terms
+            w = _end_slopes(seg, i, cx, cy, z, r, n, sigma, norm, k1)
+            up = min(up, max(api - bli, 0.0) + GOLDEN * w)
+            mag += api + w
+        top += up
+    # split Hessian: every in-plane second derivative lies in [-bh, top]
+    split = max(bh, top + 4.0 * SLACK * mag) * (1.0 + SLACK)
+    return g * (1.0 + SLACK), min(h * (1.0 + SLACK), split), u * (1.0 + SLACK)
+
+
 @parallel_kernel
 def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
     """In-plane slope and curvature bounds of the field over discs of the plane ``z``.
@@ -267,34 +305,33 @@ def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
     H = np.zeros(nc)
     U = np.zeros(nc)
     for j in prange(nc):
-        g = 0.0
-        h = 0.0
-        u = 0.0
-        bh = 0.0
-        top = 0.0
-        mag = 0.0
-        for q in range(ids.shape[0]):
-            i = ids[q]
-            ta, tb = _reach_interval(seg, i, cx[j], cy[j], z, r[j], sigma)
-            if not tb > ta:
-                continue
-            gi, hi, ui, bhi, bli, ai, api = _piece_bounds(seg, i, cx[j], cy[j], z, r[j], ta, tb, n, sigma,
-                                                          norm, k1, k2)
-            g += gi
-            h += hi
-            u += ui
-            bh += bhi
-            # this segment's in-plane second derivatives lie in [-bh, up]
-            up = ai - bli
-            mag += ai + bli
-            if seg[i, DELTA] == 0.0:   # untapered: the axial derivatives are end terms
-                w = _end_slopes(seg, i, cx[j], cy[j], z, r[j], n, sigma, norm, k1)
-                up = min(up, max(api - bli, 0.0) + GOLDEN * w)
-                mag += api + w
-            top += up
-        # split Hessian: every in-plane second derivative lies in [-bh, top]
-        split = max(bh, top + 4.0 * SLACK * mag) * (1.0 + SLACK)
-        G[j] = g * (1.0 + SLACK)
-        H[j] = min(h * (1.0 + SLACK), split)
-        U[j] = u * (1.0 + SLACK)
+        G[j], H[j], U[j] = _disc(seg, ids, 0, ids.shape[0], cx[j], cy[j], z, r[j], n, sigma, norm, k1, k2)
+    return G, H, U
+
+
+@parallel_kernel
+def disc_bounds_binned(seg, offsets, bins, x0, y0, side, nx, ny, cx, cy, z, r, n, sigma, norm):
+    """:func:`disc_bounds` with the plane's segments binned on a grid of
+    ``nx x ny`` squares of side ``side`` from ``(x0, y0)``: each disc looks
+    only at the list of the square holding its centre, ``bins[offsets[c] :
+    offsets[c + 1]]`` (``c = iy * nx + ix``, segment order kept), which must
+    hold every segment whose support can reach a disc centred in the square
+    (its support box grown by the largest radius); every centre must lie in
+    the grid. The bounds are those of :func:`disc_bounds` over all the
+    plane's segments, to the bit.
+    """
+    k1 = kprime_max(n, sigma, norm)
+    k2 = kernel_curvature_max(n, sigma, norm)
+    seg = borrow(seg)        # slicer._kernels.borrow: arguments outlive the call
+    bins = borrow(bins)
+    nc = cx.shape[0]
+    G = np.zeros(nc)
+    H = np.zeros(nc)
+    U = np.zeros(nc)
+    for j in prange(nc):
+        ix = min(max(int(math.floor((cx[j] - x0) / side)), 0), nx - 1)
+        iy = min(max(int(math.floor((cy[j] - y0) / side)), 0), ny - 1)
+        c = iy * nx + ix
+        G[j], H[j], U[j] = _disc(seg, bins, offsets[c], offsets[c + 1], cx[j], cy[j], z, r[j], n, sigma, norm,
+                                 k1, k2)
     return G, H, U

@@ -33,7 +33,8 @@ import math
 
 import numpy as np
 
-from .._kernels.cellbounds import SLACK, disc_bounds
+from .._kernels.binning import bin_boxes
+from .._kernels.cellbounds import SLACK, disc_bounds, disc_bounds_binned
 from .._kernels.contours import chain_rings
 from ..errors import OptionError
 from ..field import point_grid, support_boxes
@@ -81,13 +82,52 @@ def plane_segments(skel: Skeleton, z: float) -> np.ndarray:
     return np.flatnonzero((lo[:, 2] <= z) & (z <= hi[:, 2])).astype(np.int64)
 
 
+def _bin_segments(skel: Skeleton, ids: np.ndarray, x0: float, y0: float, side: float, nx: int, ny: int):
+    """The plane's segments ``ids`` binned on the root grid (``nx x ny`` squares of
+    ``side`` from ``(x0, y0)``), each by its support box grown by the largest disc
+    a root cell needs, so a square's list holds every segment that can reach a
+    disc of radius ``<= rmax`` centred in it.
+
+    Returns
+    -------
+    (x0, y0, side, nx, ny, rmax, offsets, lists)
+    """
+    lo, hi = support_boxes(skel)
+    rmax = 0.5 * math.sqrt(2.0) * side * (1.0 + SLACK)
+    # generous: a segment binned where it cannot reach is rejected exactly as
+    # without bins, so the bounds are the unbinned ones to the bit
+    grow = 1.01 * rmax + 1e-6 * (1.0 + abs(x0) + abs(y0) + side * max(nx, ny))
+    blo = lo[ids].copy()
+    bhi = hi[ids].copy()
+    blo[:, :2] -= grow
+    bhi[:, :2] += grow
+    blo[:, 2] = bhi[:, 2] = 0.0
+    order = np.arange(ids.size, dtype=np.int64)
+    offsets, local = bin_boxes(blo, bhi, order, np.array([x0, y0, -1.0]), np.array([side, side, 2.0]),
+                               np.array([nx, ny, 1], np.int64))
+    return x0, y0, side, nx, ny, rmax, offsets, ids[local]
+
+
 class _Bounds:
     """Field, gradient and the disc bounds at cell centres of one plane."""
 
-    def __init__(self, skel: Skeleton, z: float, ids: np.ndarray, tol: float):
+    def __init__(self, skel: Skeleton, z: float, ids: np.ndarray, tol: float, root=None):
         self.skel, self.z, self.ids, self.tol = skel, float(z), ids, float(tol)
         self.table = point_grid(skel)[0]
         self.evaluations = 0
+        self.bins = None if root is None else _bin_segments(skel, ids, *root)
+
+    def disc_bounds(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
+        """G, H, U of :func:`slicer._kernels.cellbounds.disc_bounds` over the discs,
+        from the segments binned near each centre when the discs fit the bins."""
+        sk = self.skel
+        if self.bins is not None:
+            x0, y0, side, nx, ny, rmax, offsets, lists = self.bins
+            inside = ((cx >= x0) & (cx < x0 + nx * side) & (cy >= y0) & (cy < y0 + ny * side)).all()
+            if inside and (r.size == 0 or r.max() <= rmax):
+                return disc_bounds_binned(self.table, offsets, lists, x0, y0, side, nx, ny, cx, cy, self.z, r,
+                                          sk.degree, sk.sigma, sk.normalisation)
+        return disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
 
     def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
         """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
@@ -97,8 +137,7 @@ class _Bounds:
         float64 (0 where the bound ``U`` already puts the cell outside: not
         evaluated), the in-plane gradient, (c, 2) float64, 1/mm, and the bounds
         ``G`` and ``H`` over the disc."""
-        sk = self.skel
-        G, H, U = disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
+        G, H, U = self.disc_bounds(cx, cy, r)
         # the bound of F over the disc stays below 1 (or no support reaches it): outside, no evaluation
         far = U * (1.0 + FIELD_SLACK) < 1.0
         reach = np.flatnonzero(~far)
@@ -429,7 +468,7 @@ def _pair_crossings(leaf, point, inside, npts: int):
 def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray]:
     """:func:`guaranteed_rings` for a plane that some supports meet."""
     x0, y0, s0, nx, ny, levels = _root_grid(skel, ids, tol, root_cell)
-    bounds = _Bounds(skel, z, ids, tol)
+    bounds = _Bounds(skel, z, ids, tol, (x0, y0, s0, nx, ny))
     X0, Y0, X1, Y1, state, kappa, slope, cells, known = _quadtree(bounds, x0, y0, s0, nx, ny, levels)
     st["cells"] += cells
     st["leaves"] += X0.size
