@@ -53,6 +53,7 @@ from slicer.errors import OutputError
 from .base import build_time, png_bytes
 from .estimate import LayerMeter
 from .printers import PrintSettings
+from .rle import occupied
 from .thumbnails import TopView, png_rgba
 from .zip_stack import ZipArchiveWriter
 
@@ -195,20 +196,21 @@ class NanoDlpWriter(ZipArchiveWriter):
     parallel_encode = True
 
     def encode_layer(self, k: int, image: np.ndarray):
-        """(PNG bytes of the packed display image, the layer's info record)."""
+        """(PNG bytes of the packed display image, the layer's info record, the
+        image's :func:`formats.rle.occupied` box)."""
         disp = np.ascontiguousarray(self.native(np.asarray(image, dtype=np.uint8)))
-        return png_bytes(pack_rgb(disp)), layer_info(disp, self.pitch)
+        return png_bytes(pack_rgb(disp)), layer_info(disp, self.pitch), occupied(image)
 
     def write_layer(self, k: int, image: np.ndarray) -> None:
         self.store_layer(k, image, self.encode_layer(k, image))
 
     def store_layer(self, k: int, image: np.ndarray, payload) -> None:
         self.next_layer(k)
-        data, info = payload
+        data, info, box = payload
         self.add(f"{k + 1}.png", data, False)
         self._info.append(info)
-        self._meter.add(image)
-        self._top.add(k, image)
+        self._meter.add(image, box)
+        self._top.add(k, image, box)
         self._k += 1
 
     # ---------------------------------------------------------------- manifests

@@ -32,6 +32,7 @@ from slicer.errors import FormatError
 from .base import build_time, png_bytes
 from .estimate import AREA_FILL, LayerMeter
 from .printers import plate_printer
+from .rle import occupied
 from .thumbnails import TopView, png_rgba
 from .zip_stack import ZipArchiveWriter
 
@@ -89,17 +90,19 @@ class Sl1Writer(ZipArchiveWriter):
 
     parallel_encode = True
 
-    def encode_layer(self, k: int, image: np.ndarray) -> bytes:
-        return png_bytes(self.printer.to_native(image))
+    def encode_layer(self, k: int, image: np.ndarray):
+        """PNG bytes of the native image and the plate box of the model (thread-safe)."""
+        return png_bytes(self.printer.to_native(image)), occupied(image)
 
     def write_layer(self, k: int, image: np.ndarray) -> None:
         self.store_layer(k, image, self.encode_layer(k, image))
 
-    def store_layer(self, k: int, image: np.ndarray, payload: bytes) -> None:
+    def store_layer(self, k: int, image: np.ndarray, payload) -> None:
         self.next_layer(k)
-        self.add(f"{self.job}{k:05d}.png", payload, False)
-        self._meter.add(image)
-        self._top.add(k, image)
+        data, box = payload
+        self.add(f"{self.job}{k:05d}.png", data, False)
+        self._meter.add(image, box)
+        self._top.add(k, image, box)
         self._k += 1
 
     def config_ini(self) -> dict:
