@@ -94,6 +94,30 @@ def next_cluster(hrec, order, a, nh):
 
 
 @kernel
+def piece_members(hrec, order, a, b, ta, tb, sarr):
+    """The members of the cluster ``order[a:b]`` whose support interval meets
+    the piece ``(ta, tb)``, into ``sarr`` (hit rows, cluster order).
+
+    Returns
+    -------
+    ns : int
+        How many.
+    fmax : float
+        The sum of their bounds on the whole ray (``H_FMAX``): a piece with
+        ``fmax`` below 1 holds no crossing.
+    """
+    ns = 0
+    fmax = 0.0
+    for c in range(a, b):
+        r = order[c]
+        if hrec[r, H_TIN] < tb and hrec[r, H_TOUT] > ta:
+            sarr[ns] = r
+            ns += 1
+            fmax += hrec[r, H_FMAX]
+    return ns, fmax
+
+
+@kernel
 def sort_unique(vals, nv):
     """Sort ``vals[:nv]`` in place and drop repeated values; returns the new count."""
     for a in range(1, nv):

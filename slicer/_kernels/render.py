@@ -49,9 +49,9 @@ from .._jit import kernel, parallel_kernel
 from .borrow import borrow, keep_alive
 from .field import segment_eval
 from .lazy import complete_row, lazy_ends
-from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, sort_hits,
-                   sort_unique, walk_buffers)
-from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, ray_support
+from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, piece_members,
+                   sort_hits, sort_unique, walk_buffers)
+from .raysupport import H_TIN, H_TOUT, H_TSTAR, ray_support
 
 OK = 0
 ROOTS_FULL = 1
@@ -336,14 +336,7 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
         for piece in range(nb - 1):
             ta = bps[piece]
             tb = bps[piece + 1]
-            ns = 0
-            fmax = 0.0
-            for c in range(a, b):
-                r = order[c]
-                if hrec[r, H_TIN] < tb and hrec[r, H_TOUT] > ta:
-                    sarr[ns] = r
-                    ns += 1
-                    fmax += hrec[r, H_FMAX]
+            ns, fmax = piece_members(hrec, order, a, b, ta, tb, sarr)
             if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
                 continue   # the primitives' bounds on the whole ray exclude 1
             if strict or not lazy:

@@ -32,9 +32,9 @@ from .._jit import kernel, parallel_kernel
 from .borrow import borrow, keep_alive
 from .field import segment_eval
 from .lazy import lazy_ends, settle, split_lazy
-from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds_iv, piece_ends, sort_hits,
-                   sort_unique, walk_buffers)
-from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, lipschitz, ray_support
+from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds_iv, piece_ends, piece_members,
+                   sort_hits, sort_unique, walk_buffers)
+from .raysupport import H_TIN, H_TOUT, H_TSTAR, lipschitz, ray_support
 
 OK = 0
 RUNS_FULL = 1
@@ -204,14 +204,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                 k1 = _first_centre(tb, z0, h, K) - 1
                 if k1 < k0 and not (spans and tb > zlo and ta < zhi):
                     continue
-                ns = 0
-                fmax = 0.0
-                for c in range(a, b):
-                    r = order[c]
-                    if hrec[r, H_TIN] < tb and hrec[r, H_TOUT] > ta:
-                        sarr[ns] = r
-                        ns += 1
-                        fmax += hrec[r, H_FMAX]
+                ns, fmax = piece_members(hrec, order, a, b, ta, tb, sarr)
                 if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
                     # the primitives' bounds on the whole ray already exclude 1
                     continue
