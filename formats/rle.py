@@ -46,14 +46,17 @@ class Band:
     r0 : int
     shape : (H, W)
         The whole image's shape.
+    cols : (c0, c1)
+        Columns outside ``c0:c1`` are zero in every row of the band.
     """
 
-    __slots__ = ("rows", "r0", "shape")
+    __slots__ = ("rows", "r0", "shape", "cols")
 
-    def __init__(self, rows: np.ndarray, r0: int, shape: tuple[int, int]):
+    def __init__(self, rows: np.ndarray, r0: int, shape: tuple[int, int], cols: tuple[int, int] | None = None):
         self.rows = rows
         self.r0 = int(r0)
         self.shape = (int(shape[0]), int(shape[1]))
+        self.cols = (0, self.shape[1]) if cols is None else (int(cols[0]), int(cols[1]))
 
     @classmethod
     def of(cls, image: np.ndarray, box: tuple[int, int, int, int] | None | bool = False) -> "Band":
@@ -78,20 +81,30 @@ class Band:
         else:
             rows = np.zeros((r1 - r0, W), np.uint8)
             rows[:, c0:c1] = image[r0:r1, c0:c1]
-        return cls(rows, r0, (H, W))
+        return cls(rows, r0, (H, W), (c0, c1))
+
+    def _apply(self, fn) -> "Band":
+        """The band of ``fn(image)`` for an ``fn`` that maps 0 to 0, applied to
+        the columns ``cols`` only (the rest stays zero)."""
+        c0, c1 = self.cols
+        if c0 == 0 and c1 == self.shape[1]:
+            return Band(np.ascontiguousarray(fn(self.rows), dtype=np.uint8), self.r0, self.shape, self.cols)
+        rows = np.zeros_like(self.rows)
+        rows[:, c0:c1] = fn(self.rows[:, c0:c1])
+        return Band(rows, self.r0, self.shape, self.cols)
 
     def map(self, table: np.ndarray) -> "Band":
         """The band of ``table[image]`` (``table[0]`` must be 0, so the rows
         outside the band stay zero)."""
         if table[0] != 0:
             raise ValueError("a band's table must map 0 to 0")
-        return Band(table[self.rows], self.r0, self.shape)
+        return self._apply(lambda a: table[a])
 
     def where_at_least(self, level: int) -> "Band":
         """The band of ``(image >= level)`` as 0 / 1 (``level`` >= 1)."""
         if level < 1:
             raise ValueError("level must be at least 1")
-        return Band((self.rows >= level).astype(np.uint8), self.r0, self.shape)
+        return self._apply(lambda a: (a >= level).astype(np.uint8))
 
 
 def runs(image) -> tuple[np.ndarray, np.ndarray]:
@@ -99,7 +112,9 @@ def runs(image) -> tuple[np.ndarray, np.ndarray]:
 
     Only the band of rows with a non-zero pixel is scanned (``image`` may be
     a :class:`Band`); the empty rows above and below join the first and last
-    runs.
+    runs. Of a band, only its columns ``cols`` are read: each row's window
+    is followed by one zero standing for the ``W - (c1 - c0)`` zeros between
+    two windows, and a run's length counts those.
 
     Examples
     --------
@@ -112,11 +127,23 @@ def runs(image) -> tuple[np.ndarray, np.ndarray]:
     if band.rows.shape[0] == 0:
         return np.zeros(1 if H * W else 0, np.uint8), np.full(1 if H * W else 0, H * W, np.int64)
     r0, r1 = band.r0, band.r0 + band.rows.shape[0]
-    flat = band.rows.reshape(-1)
+    c0, c1 = band.cols
+    if c1 - c0 < W:
+        q = c1 - c0 + 1                              # a row's window and its stand-in zero
+        win = np.zeros((r1 - r0, q), np.uint8)
+        win[:, :q - 1] = band.rows[:, c0:c1]
+        flat = win.reshape(-1)[:-1]
+    else:
+        q = 0
+        flat = band.rows.reshape(-1)
     starts = np.concatenate([[0], np.flatnonzero(flat[1:] != flat[:-1]) + 1])
-    lengths = np.diff(np.concatenate([starts, [flat.size]])).astype(np.int64)
+    ends = np.concatenate([starts[1:], [flat.size]])
+    lengths = (ends - starts).astype(np.int64)
+    if q:
+        # stand-ins in [s, e): the multiples of q in (s, e], each W - q + 1 zeros
+        lengths += (ends // q - starts // q) * (W - q)
     vals = flat[starts]
-    before, after = r0 * W, (H - r1) * W
+    before, after = r0 * W + c0, (H - r1) * W + (W - c1)
     if before:
         if vals[0] == 0:
             lengths[0] += before

@@ -172,3 +172,24 @@ def test_an_encoding_error_stops_the_stack_by_name():
     with pytest.raises(OutputError, match="layer 7"):
         write_ordered(wr, (np.full((2, 2), k, np.uint8) for k in range(25)), 3)
     assert [k for k, _ in wr.stored] == list(range(7))
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_runs_of_a_band_read_from_its_box_are_the_image_runs(seed):
+    """Boxes at the edges, one column wide or the full width, greys or 0/1, empty images."""
+    rng = np.random.default_rng(seed)
+    H, W = rng.integers(1, 9), rng.integers(1, 12)
+    img = np.zeros((H, W), np.uint8)
+    if seed % 9:
+        r0, c0 = rng.integers(0, H), rng.integers(0, W)
+        r1, c1 = rng.integers(r0 + 1, H + 1), rng.integers(c0 + 1, W + 1)
+        img[r0:r1, c0:c1] = rng.integers(0, 3 if seed % 2 else 256, (r1 - r0, c1 - c0))
+    flat = img.reshape(-1)
+    cuts = np.flatnonzero(np.diff(flat)) + 1
+    want_v = flat[np.concatenate([[0], cuts])]
+    want_n = np.diff(np.concatenate([[0], cuts, [flat.size]]))
+    band = Band.of(img)
+    for b in (band, band.map(np.arange(256, dtype=np.uint8))):
+        v, n = runs(b)
+        assert v.tolist() == want_v.tolist() and n.tolist() == want_n.tolist()
+    assert np.array_equal(runs(band.where_at_least(1))[1], runs((img >= 1).astype(np.uint8))[1])
