@@ -293,7 +293,7 @@ def main(argv=None) -> int:
         doc = {"benchmark": "speed", "command": machine.command_line("python benchmarks/speed.py", argv),
                "machine": machine.describe(), "quick": args.quick, "repeat": args.repeat,
                "threads": args.threads, "trees": labels, "rows": rows}
-        args.json.write_text(json.dumps(doc, indent=1) + "\n")
+        machine.write_json(args.json, doc)
     return 0
 
 

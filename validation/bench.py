@@ -17,7 +17,6 @@ over bucketed sampling, and voxels that differ from the interval result.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -154,7 +153,7 @@ def main(argv=None) -> int:
     print(f"command: {res['command']}\nmachine: {machine.summary(res['machine'])}")
     print(format_table(res))
     if args.json:
-        args.json.write_text(json.dumps(res, indent=1) + "\n")
+        machine.write_json(args.json, res)
     return 0
 
 

@@ -34,7 +34,6 @@ every run's seconds and the counts.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import time
@@ -143,7 +142,7 @@ def main(argv=None) -> int:
     print(f"command: {res['command']}\nmachine: {machine.summary(res['machine'])}")
     print(format_table(res))
     if args.json:
-        args.json.write_text(json.dumps(res, indent=1) + "\n")
+        machine.write_json(args.json, res)
     return 0
 
 

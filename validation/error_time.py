@@ -33,7 +33,6 @@ marked). Timings depend on the machine and its load.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -288,7 +287,7 @@ def main(argv=None) -> int:
     print(f"command: {res['command']}\nmachine: {machine.summary(res['machine'])}")
     print(format_table(res))
     if args.json:
-        args.json.write_text(json.dumps(res, indent=1) + "\n")
+        machine.write_json(args.json, res)
     if args.plot:
         plot(res, args.plot)
     return 0

@@ -10,12 +10,15 @@ file name only (:func:`portable`).
 """
 from __future__ import annotations
 
+import json
 import os
 import platform
 import re
 import shlex
 import sys
 from pathlib import Path
+
+from slicer.atomic import write_bytes
 
 #: the repository (or installed source tree) root: the folder holding ``validation/``
 ROOT = Path(__file__).resolve().parent.parent
@@ -149,4 +152,9 @@ def command_line(prog: str, argv=None) -> str:
     return " ".join([prog, *out])
 
 
-__all__ = ["describe", "summary", "command_line", "portable", "cpu_model", "os_name", "ROOT"]
+__all__ = ["describe", "summary", "command_line", "portable", "cpu_model", "os_name", "write_json", "ROOT"]
+
+
+def write_json(path, doc: dict) -> None:
+    """Write a benchmark's JSON document to ``path`` atomically (replacing it)."""
+    write_bytes(path, (json.dumps(doc, indent=1) + "\n").encode(), force=True)

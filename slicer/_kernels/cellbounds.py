@@ -267,7 +267,6 @@ def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2):
     return g * (1.0 + SLACK), min(h * (1.0 + SLACK), split), u * (1.0 + SLACK)
 
 
-@parallel_kernel
 def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
     """In-plane slope and curvature bounds of the field over discs of the plane ``z``.
 
@@ -296,17 +295,10 @@ def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
         Upper bound of ``F`` over each disc (the integrand ``k(s)/tau`` is at
         most ``k(s_lo)/tau_min`` on each piece).
     """
-    k1 = kprime_max(n, sigma, norm)
-    k2 = kernel_curvature_max(n, sigma, norm)
-    seg = borrow(seg)        # slicer._kernels.borrow: arguments outlive the call
-    ids = borrow(ids)
-    nc = cx.shape[0]
-    G = np.zeros(nc)
-    H = np.zeros(nc)
-    U = np.zeros(nc)
-    for j in prange(nc):
-        G[j], H[j], U[j] = _disc(seg, ids, 0, ids.shape[0], cx[j], cy[j], z, r[j], n, sigma, norm, k1, k2)
-    return G, H, U
+    ids = np.ascontiguousarray(ids, dtype=np.int64)
+    # one square holding every segment: the binned kernel's lists, with a single list
+    return disc_bounds_binned(seg, np.array([0, ids.size], dtype=np.int64), ids, 0.0, 0.0, np.inf, 1, 1,
+                              cx, cy, z, r, n, sigma, norm)
 
 
 @parallel_kernel
