@@ -34,6 +34,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
+from conftest import missing_tool
 from formats.goo import HEADER_SIZE, GooWriter, encode_layer
 from formats.printers import PRINTERS, PrintSettings
 from interrupting import interrupt_and_check, start_slice, wait_mid_write
@@ -506,12 +507,12 @@ def _stl_box(path):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(shutil.which("prusa-slicer") is None,
-                    reason="prusa-slicer not installed (Debian: apt-get install --no-install-recommends prusa-slicer)")
 def test_prusaslicer_loads_our_profile(jobs, tmp_path):
     """`prusa-slicer --config-compatibility disable --load prusaslicer.ini` accepts our
     profile and exports with it; a corrupted value is rejected (exit != 0); and
     PrusaSlicer rasterises a box exactly where Printer.to_native puts it."""
+    if shutil.which("prusa-slicer") is None:
+        missing_tool("prusa-slicer not installed (Debian: apt-get install --no-install-recommends prusa-slicer)")
     with zipfile.ZipFile(jobs["e.sl1s"]) as z:
         ini = z.read("prusaslicer.ini").decode()
     good, bad, stl = tmp_path / "good.ini", tmp_path / "bad.ini", tmp_path / "box.stl"
