@@ -42,6 +42,10 @@ from ..skeleton import Skeleton
 from .roots import FIELD_SLACK, _field, solve_crossings
 from .simplify import CHORD_FRACTION
 
+#: cells whose side is at most this many tolerances take their parent's disc
+#: bounds instead of computing their own
+INHERIT_BELOW = 16
+
 #: root cells have this many times the median radius of the plane's struts
 ROOT_CELL_RADII = 0.5
 
@@ -129,15 +133,18 @@ class _Bounds:
                                           sk.degree, sk.sigma, sk.normalisation)
         return disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
 
-    def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
+    def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, inherited=None):
         """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
         a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none),
         lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over it, (c, 2) float64,
         1/mm (0: none), and the Taylor data of its centre: the field, (c,)
         float64 (0 where the bound ``U`` already puts the cell outside: not
         evaluated), the in-plane gradient, (c, 2) float64, 1/mm, and the bounds
-        ``G`` and ``H`` over the disc."""
-        G, H, U = self.disc_bounds(cx, cy, r)
+        ``G``, ``H`` and ``U`` over the disc.
+
+        ``inherited``: ``(G, H, U)`` of discs that contain these (a parent's
+        disc holds its children's), used as they are instead of new bounds."""
+        G, H, U = self.disc_bounds(cx, cy, r) if inherited is None else inherited
         # the bound of F over the disc stays below 1 (or no support reaches it): outside, no evaluation
         far = U * (1.0 + FIELD_SLACK) < 1.0
         reach = np.flatnonzero(~far)
@@ -174,7 +181,7 @@ class _Bounds:
             kappa = np.where(glo > 0, H / np.where(glo > 0, glo, 1.0), np.inf)
             slope = np.maximum(np.column_stack([np.abs(gx), np.abs(gy)]) - gs[:, None], 0.0)
         slope[~np.isfinite(slope)] = 0.0
-        return state, kappa, slope, (f, np.column_stack([gx, gy]), G, H)
+        return state, kappa, slope, (f, np.column_stack([gx, gy]), G, H, U)
 
     @staticmethod
     def settle_children(taylor, r: float, offset: np.ndarray) -> np.ndarray:
@@ -186,13 +193,13 @@ class _Bounds:
         Parameters
         ----------
         taylor : tuple
-            The parents' ``(f, grad, G, H)`` (:meth:`classify`), one row per child.
+            The parents' ``(f, grad, G, H, U)`` (:meth:`classify`), one row per child.
         r : float, mm
             Half diagonal of the children (with its slack).
         offset : (c, 2) float64, mm
             Child centre minus parent centre.
         """
-        f, g, G, H = taylor
+        f, g, G, H = taylor[:4]
         gn = np.hypot(g[:, 0], g[:, 1])
         with np.errstate(invalid="ignore", over="ignore"):
             lin = f + g[:, 0] * offset[:, 0] + g[:, 1] * offset[:, 1]
@@ -243,7 +250,13 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
         rest = np.flatnonzero(state < 0)
         # (ix + 0.5) s is (ix unit + unit/2) h exactly (s = unit h, a power of two):
         # a split cell's centre is bit for bit its children's common corner
-        st_r, kappa[rest], slope[rest], taylor = bounds.classify(cx[rest], cy[rest], np.full(rest.size, rr))
+        inherited = None
+        if parent is not None and s <= INHERIT_BELOW * bounds.tol:
+            # small cells: the parent's bounds hold over the child's disc and are
+            # nearly as tight there; new ones would cost more than they save
+            inherited = tuple(a[rest] for a in parent[1][2:])
+        st_r, kappa[rest], slope[rest], taylor = bounds.classify(cx[rest], cy[rest], np.full(rest.size, rr),
+                                                                 inherited)
         state[rest] = st_r
         f[rest] = taylor[0]
         cells += ix.size
