@@ -150,10 +150,7 @@ def main(argv=None) -> int:
     res = table1(args.models, args.layers, args.pixels, args.methods, args.threads,
                  not args.no_write, args.repeat)
     res = {"command": machine.command_line("python -m validation.bench", argv), **res}
-    print(f"command: {res['command']}\nmachine: {machine.summary(res['machine'])}")
-    print(format_table(res))
-    if args.json:
-        machine.write_json(args.json, res)
+    machine.publish(res, format_table(res), args.json)
     return 0
 
 

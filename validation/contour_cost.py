@@ -139,10 +139,7 @@ def main(argv=None) -> int:
     res = measure(args.model, args.pixels, args.layers, args.tol, args.repeat, args.threads)
     res = {"command": machine.command_line("python -m validation.contour_cost", argv), **res,
            "machine": machine.describe()}
-    print(f"command: {res['command']}\nmachine: {machine.summary(res['machine'])}")
-    print(format_table(res))
-    if args.json:
-        machine.write_json(args.json, res)
+    machine.publish(res, format_table(res), args.json)
     return 0
 
 

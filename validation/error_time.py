@@ -284,10 +284,7 @@ def main(argv=None) -> int:
                 progress=lambda r: print(f"  {label(r)}: {r['seconds']:.3f} s, {r['error_layer'] * 1e3:.3f} um",
                                          file=sys.stderr, flush=True))
     res = {"command": machine.command_line("python -m validation.error_time", argv), **res}
-    print(f"command: {res['command']}\nmachine: {machine.summary(res['machine'])}")
-    print(format_table(res))
-    if args.json:
-        machine.write_json(args.json, res)
+    machine.publish(res, format_table(res), args.json)
     if args.plot:
         plot(res, args.plot)
     return 0

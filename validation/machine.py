@@ -152,9 +152,18 @@ def command_line(prog: str, argv=None) -> str:
     return " ".join([prog, *out])
 
 
-__all__ = ["describe", "summary", "command_line", "portable", "cpu_model", "os_name", "write_json", "ROOT"]
+__all__ = ["describe", "summary", "command_line", "portable", "cpu_model", "os_name", "write_json", "publish", "ROOT"]
 
 
 def write_json(path, doc: dict) -> None:
     """Write a benchmark's JSON document to ``path`` atomically (replacing it)."""
     write_bytes(path, (json.dumps(doc, indent=1) + "\n").encode(), force=True)
+
+
+def publish(res: dict, table: str, json_path=None) -> None:
+    """Print a benchmark's command, machine (``res["command"]``, ``res["machine"]``)
+    and ``table``; with ``json_path``, also write ``res`` there (:func:`write_json`)."""
+    print(f"command: {res['command']}\nmachine: {summary(res['machine'])}")
+    print(table)
+    if json_path:
+        write_json(json_path, res)
