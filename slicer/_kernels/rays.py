@@ -17,6 +17,8 @@ and decrement per call, a third of the run time in this inner loop.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .._jit import inline_kernel, kernel
@@ -55,6 +57,24 @@ def walk_buffers(nl, stack):
             np.empty(nl, dtype=np.int64), np.empty(3 * nl + 4), np.empty(nl, dtype=np.int64),
             np.empty((stack + 1, nl)), np.empty((stack + 1, nl)), np.empty(stack),
             np.empty(nl), np.empty(nl), np.empty(nl))
+
+
+@kernel
+def first_centre(t, z0, h, K):
+    """Smallest k with ``z0 + k h >= t`` (clamped to [0, K]): the first voxel centre
+    at or above height ``t`` of a column of ``K`` centres ``z0 + k h``."""
+    u = math.ceil((t - z0) / h)
+    if not u > 0.0:
+        k = 0
+    elif u >= K:
+        k = K
+    else:
+        k = int(u)
+    while k > 0 and z0 + (k - 1) * h >= t:
+        k -= 1
+    while k < K and z0 + k * h < t:
+        k += 1
+    return k
 
 
 @kernel

@@ -32,8 +32,8 @@ from .._jit import kernel, parallel_kernel
 from .borrow import borrow, keep_alive
 from .field import segment_eval
 from .lazy import lazy_ends, settle, split_lazy
-from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds_iv, piece_ends, piece_members,
-                   sort_hits, sort_unique, walk_buffers)
+from .rays import (PAD, eval_along, first_centre, hermite_point, next_cluster, piece_bounds_iv, piece_ends,
+                   piece_members, sort_hits, sort_unique, walk_buffers)
 from .raysupport import H_TIN, H_TOUT, H_TSTAR, lipschitz, ray_support
 
 OK = 0
@@ -49,23 +49,6 @@ DEEP_CENTRES = 96
 # refined there (a pixel column lying in the surface of a constant-radius strut)
 SURFACE_BAND = 1e-9
 DEEP_SPANS = 150
-
-
-@kernel
-def _first_centre(t, z0, h, K):
-    """Smallest k with z0 + k h >= t (clamped to [0, K])."""
-    u = math.ceil((t - z0) / h)
-    if not u > 0.0:
-        k = 0
-    elif u >= K:
-        k = K
-    else:
-        k = int(u)
-    while k > 0 and z0 + (k - 1) * h >= t:
-        k -= 1
-    while k < K and z0 + k * h < t:
-        k += 1
-    return k
 
 
 @kernel
@@ -170,8 +153,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     a = 0
     while a < nh:
         b, cs, ce = next_cluster(hrec, order, a, nh)
-        kc0 = _first_centre(cs, z0, h, K)
-        kc1 = _first_centre(ce, z0, h, K) - 1
+        kc0 = first_centre(cs, z0, h, K)
+        kc1 = first_centre(ce, z0, h, K) - 1
         if kc1 >= kc0 or (spans and ce > zlo and cs < zhi):
             # breakpoints: the cut t* of every member (EG22), and optionally
             # every support entry and exit; with spans, the grid's z range
@@ -200,8 +183,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
             for j in range(nb - 1):
                 ta = bps[j]
                 tb = bps[j + 1]
-                k0 = _first_centre(ta, z0, h, K)
-                k1 = _first_centre(tb, z0, h, K) - 1
+                k0 = first_centre(ta, z0, h, K)
+                k1 = first_centre(tb, z0, h, K) - 1
                 if k1 < k0 and not (spans and tb > zlo and ta < zhi):
                     continue
                 ns, fmax = piece_members(hrec, order, a, b, ta, tb, sarr)
@@ -430,8 +413,8 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
     a = 0
     while a < nh:
         b, cs, ce = next_cluster(hrec, order, a, nh)
-        k = _first_centre(cs, z0, h, K)
-        kend = _first_centre(ce, z0, h, K)
+        k = first_centre(cs, z0, h, K)
+        kend = first_centre(ce, z0, h, K)
         t = cs
         s = ce - cs
         while k < kend:
@@ -446,7 +429,7 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
             if step > s:
                 step = s
             tn = t + step
-            k1 = _first_centre(tn, z0, h, K)   # centres in [t, tn) are safe
+            k1 = first_centre(tn, z0, h, K)   # centres in [t, tn) are safe
             zk = z0 + k * h
             if k1 > k and zk >= t:
                 nrun = _emit(k, k1 - 1, f >= 1.0, rk0, rk1, nrun, cap)

@@ -41,6 +41,7 @@ from numba import prange
 from .._jit import kernel, parallel_kernel
 from .borrow import borrow, keep_alive
 from .field import SCRATCH, segment_eval
+from .rays import first_centre
 from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz, ray_support
 
 OK = 0
@@ -57,23 +58,6 @@ SURFACE_BAND = 1e-9
 C_RUN, C_X, C_EV = range(3)
 # float state of a strut walk: current point t, f, f'; then the ray's px, py
 W_T, W_F, W_D, W_PX, W_PY = range(5)
-
-
-@kernel
-def first_centre(t, z0, h, K):
-    """Smallest k with ``z0 + k h >= t`` (clamped to [0, K])."""
-    u = math.ceil((t - z0) / h)
-    if not u > 0.0:
-        k = 0
-    elif u >= K:
-        k = K
-    else:
-        k = int(u)
-    while k > 0 and z0 + (k - 1) * h >= t:
-        k -= 1
-    while k < K and z0 + k * h < t:
-        k += 1
-    return k
 
 
 @kernel
