@@ -187,7 +187,8 @@ def _trace(skel: Skeleton, job: SliceJob, resolved: ResolvedJob, *, progress=Non
             executor_info = describe_executor(executor or "serial", scale.workers, scale.scheduler)
         args = (*grid_args, opts.method, opts.bucket, opts.threads, opts.strict, opts.spans)
         plan = plan_slice(*args, max_memory=scale.max_memory, executor_info=executor_info, tile=scale.tile,
-                          slab=scale.slab, sample=True if dry_run else None, blend=opts.blend)
+                          slab=scale.slab, sample=True if dry_run else None, blend=opts.blend,
+                          prefetch=scale.prefetch)
         if report is not None:
             report(plan.describe())
         if dry_run:
@@ -224,7 +225,8 @@ def _slice_part_job(part: Part, grid_args: tuple, opts, scale, dry_run: bool, re
             return {**grid.to_dict(), "plan": {"grid": grid.to_dict()}, "plan_text": text, "dry_run": True}
         return slice_part(*args, blend=opts.blend)
     plan = plan_part(*args, max_memory=scale.max_memory, executor_info=executor_info, tile=scale.tile,
-                     slab=scale.slab, sample=True if dry_run else None, blend=opts.blend)
+                     slab=scale.slab, sample=True if dry_run else None, blend=opts.blend,
+                     prefetch=scale.prefetch)
     if report is not None:
         report(plan.describe())
     if dry_run:

@@ -126,6 +126,11 @@ class ScaleOptions:
         A running Dask scheduler's address.
     tile : int or None, px
     slab : int or None, layers
+    prefetch : bool or None
+        With several slabs, trace the next one while one is written
+        (:attr:`slicer.tileplan.TilePlan.prefetch`): True sizes the slabs so
+        that two fit the budget; None (default) prefetches only when two
+        slabs of the size planned without it fit; False never.
     """
 
     max_memory: int | str | None = None
@@ -134,6 +139,7 @@ class ScaleOptions:
     scheduler: str | None = None
     tile: int | None = None
     slab: int | None = None
+    prefetch: bool | None = None
 
     @property
     def planned(self) -> bool:

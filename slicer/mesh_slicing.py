@@ -49,6 +49,7 @@ import numpy as np
 
 from .grid import SliceGrid
 from .mesh_intersect import orient2d
+from .ordering import lexsort2
 
 #: layers cut at once (bounds the memory of the face-layer pairs)
 LAYER_BATCH = 32
@@ -415,7 +416,7 @@ def runs_from_masks(masks: Iterator[tuple[int, np.ndarray]], n_pixels: int, k_st
         z = np.zeros(0, np.int64)
         return z, z.copy(), z.copy()
     pix, k0, k1 = (np.concatenate(x).astype(np.int64) for x in (out_p, out_a, out_b))
-    order = np.lexsort((k0, pix))
+    order = lexsort2(k0, pix)
     return pix[order], k0[order], k1[order]
 
 

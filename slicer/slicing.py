@@ -21,6 +21,7 @@ from .blend import require_traceable
 from .buckets import Buckets, build_buckets, thread_order
 from .errors import GridError
 from .grid import SliceGrid, make_grid
+from .ordering import lexsort2, stable_argsort
 from .skeleton import Skeleton
 
 #: tracing methods and their kernel codes
@@ -94,7 +95,7 @@ class SliceResult:
         ev_k = np.concatenate([self.k0, self.k1])
         ev_pix = np.concatenate([self.pix, self.pix])
         ev_val = np.concatenate([np.full(self.n_runs, value, np.uint8), np.zeros(self.n_runs, np.uint8)])
-        order = np.argsort(ev_k, kind="stable")
+        order = stable_argsort(ev_k)
         ev_k, ev_pix, ev_val = ev_k[order], ev_pix[order], ev_val[order]
         bounds = np.searchsorted(ev_k, np.arange(K + 1))
         img = np.zeros(g.width * g.height, np.uint8)
@@ -156,7 +157,7 @@ def coverage_layers(span_pix: np.ndarray, u0: np.ndarray, u1: np.ndarray, layers
     part_k = np.concatenate([ka, kb[~same]])
     part_pix = np.concatenate([span_pix, span_pix[~same]])
     part_v = np.concatenate([np.where(same, u1 - u0, (ka + 1) - u0), (u1 - kb)[~same]])
-    order = np.argsort(part_k, kind="stable")
+    order = stable_argsort(part_k)
     part_k, part_pix, part_v = part_k[order], part_pix[order], part_v[order]
     pb = np.searchsorted(part_k, np.arange(K + 1))
     # fully covered layers ka < k < kb: +1 from ka + 1, -1 from kb
@@ -164,7 +165,7 @@ def coverage_layers(span_pix: np.ndarray, u0: np.ndarray, u1: np.ndarray, layers
     ev_k = np.concatenate([ka[full] + 1, kb[full]])
     ev_pix = np.concatenate([span_pix[full], span_pix[full]])
     ev_d = np.concatenate([np.ones(int(full.sum()), np.int32), -np.ones(int(full.sum()), np.int32)])
-    order = np.argsort(ev_k, kind="stable")
+    order = stable_argsort(ev_k)
     ev_k, ev_pix, ev_d = ev_k[order], ev_pix[order], ev_d[order]
     eb = np.searchsorted(ev_k, np.arange(K + 1))
     count = np.zeros(npx, np.int32)
@@ -261,7 +262,7 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
         pix = np.concatenate(pix_parts).astype(np.int64)
         k0 = np.concatenate(k0_parts).astype(np.int64)
         k1 = np.concatenate(k1_parts).astype(np.int64)
-        order = np.lexsort((k0, pix))
+        order = lexsort2(k0, pix)
         pix, k0, k1 = pix[order], k0[order], k1[order]
     else:
         pix = np.zeros(0, np.int64)

@@ -3,7 +3,8 @@
 A plan cuts the job grid into XY tiles (aligned to the bucket size) and Z
 slabs so that the estimated peak memory fits a budget (``--max-memory``).
 The estimate counts the process as it is, the scene, one layer image, the
-runs of one slab while its layers are produced, and the tiles in flight;
+runs of one slab while its layers are produced (of two when the next slab is
+traced while this one is written: ``prefetch``), and the tiles in flight;
 runs per pixel column come from tracing a small deterministic sample of
 columns when the worst case (``ceil(layers / 2)`` runs a column) does not
 fit. Plans depend on the grid, the options and the budget only (never on
@@ -138,6 +139,9 @@ class TilePlan:
         Tiles in flight at once.
     trim : bool
         Default bounds: the output is trimmed to the model.
+    prefetch : bool
+        The next slab is traced while this one's layers are written (the
+        estimate then holds the runs of two slabs).
     """
 
     grid: SliceGrid
@@ -150,6 +154,7 @@ class TilePlan:
     seconds: float | None
     window: int
     trim: bool
+    prefetch: bool = False
 
     def tiles(self, i0: int = 0, j0: int = 0, i1: int | None = None, j1: int | None = None):
         """XY tiles ``(i0, j0, w, h)`` covering columns [i0, i1) and rows [j0, j1),
@@ -186,7 +191,7 @@ class TilePlan:
                 "slabs": self.n_slabs, "passes": self.passes, "budget": self.budget,
                 "runs_per_column": self.runs_per_column, "sampled": self.sampled,
                 "estimate": dict(self.estimate), "seconds": self.seconds, "window": self.window,
-                "trim": self.trim}
+                "trim": self.trim, "prefetch": self.prefetch}
 
     def describe(self) -> str:
         g = self.grid
@@ -199,7 +204,8 @@ class TilePlan:
             f"tiles:     {self.n_tiles} of up to {self.tile} x {self.tile} px, {self.window} in flight",
             f"slabs:     {self.n_slabs} of up to {self.slab} layers"
             + (" (2 passes: the first finds the model's extent; give --bounds to avoid it)"
-               if self.passes == 2 else ""),
+               if self.passes == 2 else "")
+            + ("; the next is traced while one is written" if self.prefetch else ""),
             f"runs:      {self.runs_per_column:.3g} per column "
             + ("(estimated from a sample)" if self.sampled else "(upper bound, not sampled)"),
             f"memory:    ~{format_size(e['total'])} peak estimated"
@@ -265,7 +271,8 @@ def plan_job(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, budget: int | 
              workers: int = 1, pool_processes: int = 0, trim_output: bool = False,
              sample: bool | None = None, tile: int | None = None, boxes=None,
              layer_bytes_per_pixel: float = BYTES_PER_LAYER_PIXEL,
-             process_bytes: int | None = None, slab: int | None = None) -> TilePlan:
+             process_bytes: int | None = None, slab: int | None = None,
+             prefetch: bool | None = None) -> TilePlan:
     """Choose tile and slab sizes so the estimated peak memory fits ``budget``.
 
     Parameters
@@ -298,6 +305,13 @@ def plan_job(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, budget: int | 
         Memory the process uses before the job (default: measured now).
     slab : int, optional
         Layers per slab, instead of the largest that fits the budget.
+    prefetch : bool or None
+        With several slabs, trace the next slab while one is written
+        (:attr:`TilePlan.prefetch`). True: the slabs are sized so that two
+        fit the budget (GridError if two slabs of ``slab`` layers do not).
+        None (default): only when two slabs of the size chosen without
+        prefetching fit anyway (never more slabs for it). False: never. A
+        one-slab plan never prefetches.
 
     Raises
     ------
@@ -328,17 +342,21 @@ def plan_job(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, budget: int | 
     layer = W * H * layer_bytes_per_pixel
     per_run = BYTES_PER_RUN + (BYTES_PER_SPAN if opts.spans else 0)
 
-    def estimate(rpc: float, L: int) -> dict:
+    def estimate(rpc: float, L: int, two: bool = False) -> dict:
         # a run crossing a slab boundary counts once per slab: one more run in the
         # columns that are inside at the boundary (the inside fraction of the voxels)
         split = min(1.0, fill * SAFETY) if L < K else 0.0
         rpc_slab = min(rpc * SAFETY * L / max(K, 1) + split, math.ceil(L / 2))
         tpx = min(T, W) * min(T, H)
         tiles = window * tpx * (BYTES_PER_TILE_PIXEL + rpc_slab * BYTES_PER_TILE_RUN)
-        runs = W * H * rpc_slab * per_run
+        # prefetching (``two``): the slab being written and the next one, merged
+        runs = W * H * rpc_slab * per_run * (2 if two and L < K else 1)
         total = process + scene + layer + runs + tiles
         return {"process": process, "scene": scene, "layer": layer, "runs": runs, "tiles": tiles,
                 "total": total}
+
+    def fits(L: int, two: bool) -> bool:
+        return budget is None or estimate(rpc, L, two)["total"] <= budget
 
     rpc, fill, sampled = upper, 1.0, False
     if sample is None:
@@ -350,38 +368,60 @@ def plan_job(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, budget: int | 
         sampled = True
         par = workers if not serial else max(1, opts.threads or cores())
         seconds = spc * W * H / par
-    L = K
     if slab is not None:
         if int(slab) < 1:
             raise OptionError(f"--slab must be >= 1 layer, got {slab}")
         L = min(int(slab), max(K, 1))
-        if budget is not None and estimate(rpc, L)["total"] > budget:
+        if not fits(L, False):
             raise GridError(f"--max-memory {format_size(budget)} is too small for slabs of {L} layers: "
                             f"they need ~{format_size(estimate(rpc, L)['total'])}")
-    elif budget is not None and K > 1 and estimate(rpc, K)["total"] > budget:
-        lo_l, hi_l = 1, K - 1        # (one slab has no split runs: test it apart)
-        if estimate(rpc, 1)["total"] > budget:
+    elif not fits(max(K, 1), False):
+        if K <= 1:
+            raise GridError(f"--max-memory {format_size(budget)} is too small for this job: it needs "
+                            f"~{format_size(estimate(rpc, max(K, 1))['total'])}")
+        if not fits(1, False):
             e = estimate(rpc, 1)
             raise GridError(
                 f"--max-memory {format_size(budget)} is too small for this job: even one layer per slab "
                 f"needs ~{format_size(e['total'])} (process {format_size(e['process'])}, scene "
                 f"{format_size(e['scene'])}, layer image {format_size(e['layer'])}, runs "
                 f"{format_size(e['runs'] + e['tiles'])})")
-        while lo_l < hi_l:           # largest slab that fits
-            mid = (lo_l + hi_l + 1) // 2
-            if estimate(rpc, mid)["total"] <= budget:
-                lo_l = mid
-            else:
-                hi_l = mid - 1
-        L = lo_l
-    elif budget is not None and estimate(rpc, max(K, 1))["total"] > budget:
-        raise GridError(f"--max-memory {format_size(budget)} is too small for this job: it needs "
-                        f"~{format_size(estimate(rpc, max(K, 1))['total'])}")
+        L = _largest(lambda n: fits(n, prefetch is True), K - 1)   # one slab has no split runs
+        if L == 0:
+            e = estimate(rpc, 1, True)
+            raise GridError(f"--max-memory {format_size(budget)} is too small to trace a slab while another is "
+                            f"written (--prefetch): two one-layer slabs need ~{format_size(e['total'])}; "
+                            f"give --no-prefetch")
+    else:
+        L = max(K, 1)
     L = max(1, min(L, max(K, 1)))
     # balance the slabs: same count, equal sizes
     n = -(-max(K, 1) // L)
     L = -(-max(K, 1) // n)
-    return TilePlan(grid, T, L, budget, float(rpc), sampled, estimate(rpc, L), seconds, window, trim_output)
+    # prefetch: asked for (the slabs above were sized for two), or by default when two slabs of
+    # this size fit anyway -- never more slabs for it (each re-culls and re-walks every tile)
+    two = L < max(K, 1) and prefetch is not False and fits(L, True)
+    if prefetch is True and L < max(K, 1) and not two:
+        e = estimate(rpc, L, True)
+        raise GridError(f"--max-memory {format_size(budget)} is too small for two slabs of {L} layers "
+                        f"(--prefetch): they need ~{format_size(e['total'])}; give --no-prefetch or a smaller "
+                        f"--slab")
+    return TilePlan(grid, T, L, budget, float(rpc), sampled, estimate(rpc, L, two), seconds, window, trim_output,
+                    two)
+
+
+def _largest(ok, hi: int) -> int:
+    """The largest n in [1, hi] with ``ok(n)`` (``ok`` monotone: true up to some n), or 0."""
+    if hi < 1 or not ok(1):
+        return 0
+    lo = 1
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if ok(mid):
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
 
 
 def warm_up(opts: TraceOptions) -> None:
@@ -398,11 +438,12 @@ def plan_slice(skel: Skeleton, pixel_size: float, pixel_size_y: float | None = N
                executor_info=None, tile: int | None = None, sample: bool | None = None,
                layer_bytes_per_pixel: float | None = None,
                process_bytes: int | None = None, slab: int | None = None,
-               grid: SliceGrid | None = None, blend: str = "sum") -> TilePlan:
+               grid: SliceGrid | None = None, blend: str = "sum", prefetch: bool | None = None) -> TilePlan:
     """The plan :func:`slice_planned` would follow (grid checks included),
     without tracing more than the sample. Used by ``--dry-run``.
 
     ``blend``: as :func:`slicer.slicing.slice_skeleton` (the sample is traced with it).
+    ``prefetch``: as :func:`plan_job`.
 
     ``layer_bytes_per_pixel`` defaults to :data:`BYTES_PER_LAYER_PIXEL`, or
     :data:`BYTES_PER_COVERAGE_PIXEL` with spans (float coverage layers).
@@ -423,7 +464,8 @@ def plan_slice(skel: Skeleton, pixel_size: float, pixel_size_y: float | None = N
         procs = workers
     return plan_job(skel, grid, opts, parse_size(max_memory), workers=workers, pool_processes=procs,
                     trim_output=trim_output, sample=sample, tile=tile,
-                    layer_bytes_per_pixel=layer_bytes_per_pixel, process_bytes=process_bytes, slab=slab)
+                    layer_bytes_per_pixel=layer_bytes_per_pixel, process_bytes=process_bytes, slab=slab,
+                    prefetch=prefetch)
 
 
 

@@ -7,8 +7,9 @@ fit the memory budget, into Z slabs of layers. A tile of a slab is
 reaches the tile are sent to the task (:func:`trace_tile`, a top-level
 function of plain arrays, so it runs in-process, in a pool or on Dask).
 The tiles of a slab are merged in tile order (never completion order) into
-one :class:`~slicer.slicing.SliceResult` whose layers are written before the
-next slab is traced.
+one :class:`~slicer.slicing.SliceResult`; its layers are written before the
+next slab is traced or, when the plan holds two slabs in memory
+(``prefetch``), while the next slab is traced on a background thread.
 
 With default bounds the output is trimmed to the model (plus one voxel of
 margin), which needs the model's extent before the first layer is written:
@@ -29,7 +30,9 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import threading
 import weakref
+from concurrent.futures import ThreadPoolExecutor
 from typing import Iterator
 
 import numpy as np
@@ -88,6 +91,43 @@ class _Runner:
                     self.threads = r["threads"]
                 bar.update(1)
                 yield piece, r
+
+
+def _until(pieces_results, stop: threading.Event) -> Iterator:
+    """``pieces_results`` until ``stop`` is set (then the rest are cancelled)."""
+    try:
+        for item in pieces_results:
+            if stop.is_set():
+                return
+            yield item
+    finally:
+        pieces_results.close()
+
+
+def _in_order(make, slabs, prefetch: bool) -> Iterator[SliceResult]:
+    """``make(ka, kb, stop)`` for each slab, yielded in order.
+
+    With ``prefetch`` the next slab is made on one background thread while
+    the caller holds the current one (the tracing kernels release the GIL);
+    if the caller stops early or fails, the slab in progress is abandoned at
+    its next tile.
+    """
+    stop = threading.Event()
+    if not prefetch or len(slabs) < 2:
+        for ka, kb in slabs:
+            yield make(ka, kb, stop)
+        return
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="next-slab")
+    fut = pool.submit(make, *slabs[0], stop)
+    try:
+        for nxt in [*slabs[1:], None]:
+            res = fut.result()
+            fut = None if nxt is None else pool.submit(make, *nxt, stop)
+            yield res
+            del res
+    finally:
+        stop.set()
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _merge_slab(plan: TilePlan, out_grid: SliceGrid, oi: int, oj: int, pieces_results, stats) -> SliceResult:
@@ -149,20 +189,28 @@ class StreamedResult:
         return self._box
 
     def iter_slabs(self) -> Iterator[SliceResult]:
-        """Each slab as a SliceResult on its sub-grid of :attr:`grid`, bottom first."""
+        """Each slab as a SliceResult on its sub-grid of :attr:`grid`, bottom first.
+
+        With a prefetching plan (:attr:`TilePlan.prefetch`) the next slab is
+        traced on a background thread while the caller uses this one, so at
+        most two slabs are held at once; the slabs themselves are the same.
+        """
         plan, g = self._runner.plan, self.grid
         oi, oj, ok = self._o
         tiles = plan.tiles(oi, oj, oi + g.width, oj + g.height)
+
+        def traced(ka: int, kb: int, stop: threading.Event) -> SliceResult | None:
+            pieces = [(i0, j0, ka, w, h, kb - ka) for i0, j0, w, h in tiles]
+            slab_grid = g.sub(0, 0, ka - ok, g.width, g.height, kb - ka)
+            return _merge_slab(plan, slab_grid, oi, oj,
+                               _until(self._runner.run(pieces, False, "tracing"), stop), self.stats)
+
         counted = 0
         try:
-            for ka, kb in plan.slabs(ok, ok + g.layers):
-                pieces = [(i0, j0, ka, w, h, kb - ka) for i0, j0, w, h in tiles]
-                slab_grid = g.sub(0, 0, ka - ok, g.width, g.height, kb - ka)
-                res = _merge_slab(plan, slab_grid, oi, oj, self._runner.run(pieces, False, "tracing"),
-                                  self.stats)
+            for res in _in_order(traced, plan.slabs(ok, ok + g.layers), plan.prefetch):
                 counted += res.n_runs
                 yield res
-                del res     # before the next slab is traced
+                del res     # before the slab after the next is traced
         finally:
             self.close()
         self.stats.update(evaluations=self._runner.evaluations, trace_seconds=self._runner.seconds)

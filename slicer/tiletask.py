@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .grid import SliceGrid
+from .ordering import stable_argsort
 from .skeleton import Skeleton
 from .slicing import SliceResult, trace
 
@@ -179,7 +180,7 @@ def merge_tiles(grid: SliceGrid, parts: list, stats: dict | None = None) -> Slic
             jl, il = np.divmod(local, tw)
             pix.append((j0 + jl) * grid.width + (i0 + il))
         pix = np.concatenate(pix)
-        order = np.argsort(pix, kind="stable")
+        order = stable_argsort(pix)
         out[key] = pix[order]
         for n in members:
             if n == key:

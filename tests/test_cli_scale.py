@@ -80,6 +80,15 @@ def test_repeated_runs_are_byte_identical(scene, reference, tmp_path):
         assert files(out) == reference
 
 
+@pytest.mark.parametrize("flag, prefetch", [([], True), (["--prefetch"], True), (["--no-prefetch"], False)])
+def test_prefetch_flag_sets_the_plan_and_not_the_layers(scene, reference, tmp_path, flag, prefetch):
+    out = tmp_path / "stack"
+    r = run("slice", scene, "-o", out, "--pixel-size", "0.05", "-v", "--slab", "20", "--max-memory", "none", *flag)
+    assert r.exit_code == 0, r.output
+    assert ("the next is traced while one is written" in r.stderr) == prefetch, r.stderr
+    assert files(out) == reference
+
+
 def test_verbose_prints_the_plan_on_stderr(scene, tmp_path):
     r = run("slice", scene, "-o", tmp_path / "o", "--pixel-size", "0.05", "-v", "--slab", "20")
     assert r.exit_code == 0, r.output

@@ -150,7 +150,7 @@ def test_every_executor_writes_the_same_bytes(kind, lattice, serial_stack, clust
 
         K = plan_slice(lattice, 0.05, process_bytes=0).grid.layers
         budget = plan_slice(lattice, 0.05, executor_info=info, tile=32, sample=True,
-                            slab=-(-K // 3)).estimate["total"]
+                            slab=-(-K // 3), prefetch=False).estimate["total"]
         summary = run_slice(lattice, out, pixel_size=0.05, progress=False, max_memory=budget, executor=ex,
                             executor_info=info, tile=32)
     plan = summary["plan"]

@@ -27,12 +27,12 @@ def test_from_options_round_trips_every_option():
               "at": (10.0, 20.0), "aa": 2, "aa_z": True, "gamma": 1.5, "exposure": 3.0, "bottom_exposure": 20.0,
               "bottom_layers": 4, "fmt": "zip", "force": True, "contour_tol": 0.002, "contours": "c.json",
               "scene_name": "s.json", "max_memory": "2GB", "executor": "threads", "workers": 2,
-              "scheduler": "tcp://h:1", "tile": 64, "slab": 10, "blend": "union"}
+              "scheduler": "tcp://h:1", "tile": 64, "slab": 10, "prefetch": True, "blend": "union"}
     assert set(values) == set(OPTIONS)
     job = SliceJob.from_options(**values)
     assert job.to_options() == values
     assert job.grid.pixel_size_y == 0.06 and job.trace.method == "sampling" and job.printing.at == (10.0, 20.0)
-    assert job.scale.slab == 10 and job.output.contours == "c.json"
+    assert job.scale.slab == 10 and job.scale.prefetch is True and job.output.contours == "c.json"
     assert job.replace(aa=4).printing.aa == 4 and job.printing.aa == 2
 
 

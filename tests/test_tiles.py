@@ -7,6 +7,8 @@ and byte-identical layers.
 from __future__ import annotations
 
 import dataclasses
+import threading
+import time
 import tracemalloc
 
 import numpy as np
@@ -160,7 +162,8 @@ def test_smaller_budgets_give_more_slabs_and_fit(lattice):
     K = grid.layers
     slabs = []
     for n in (1, 2, 5, 12):
-        need = plan_job(lattice, grid, opts, process_bytes=0, sample=True, slab=-(-K // n)).estimate["total"]
+        need = plan_job(lattice, grid, opts, process_bytes=0, sample=True, slab=-(-K // n),
+                        prefetch=False).estimate["total"]
         plan = plan_job(lattice, grid, opts, budget=need, process_bytes=0, sample=True)
         assert plan.estimate["total"] <= need and plan.n_slabs <= n
         ranges = plan.slabs()
@@ -186,9 +189,11 @@ def test_sample_estimates_runs_per_column(lattice, reference):
 
 # ----------------------------------------------------------------------------- tiled == untiled
 def _budget(skel, slabs, **kw) -> float:
-    """A budget that fits about ``slabs`` slabs: the estimate of that plan."""
+    """A budget that fits about ``slabs`` slabs written one after the other:
+    the estimate of that plan (a prefetching plan then has more slabs)."""
     K = plan_slice(skel, **kw, process_bytes=0).grid.layers
-    return plan_slice(skel, **kw, sample=True, process_bytes=0, slab=-(-K // slabs)).estimate["total"]
+    return plan_slice(skel, **kw, sample=True, process_bytes=0, slab=-(-K // slabs),
+                      prefetch=False).estimate["total"]
 
 
 @pytest.mark.parametrize("tile, fraction", [(16, None), (64, None), (32, 3), (64, 7)])
@@ -317,3 +322,117 @@ def test_streamed_result_without_trim_does_not_guess_its_box(lattice):
     res = slice_planned(lattice, PX, layer_height=0.07, bounds=bounds, plan=plan, progress=False)
     with pytest.raises(GridError, match="without --bounds"):
         res.inside_box()
+
+
+# ----------------------------------------------------------------------------- prefetching
+def _slab_plan(lattice, prefetch: bool, slabs: int = 4):
+    bounds = (-0.5, -0.5, 0.3, 5.5, 3.7, 3.9)
+    kw = dict(pixel_size=PX, layer_height=0.07, bounds=bounds, tile=32)
+    K = plan_slice(lattice, **kw, process_bytes=0).grid.layers
+    plan = plan_slice(lattice, **kw, process_bytes=0, slab=-(-K // slabs), prefetch=prefetch)
+    assert plan.n_slabs == slabs and plan.prefetch == prefetch
+    return plan, dict(layer_height=0.07, bounds=bounds)
+
+
+def _recording_tracer(monkeypatch):
+    """Replace the tile task by one that records the first layer of every tile it traces."""
+    import slicer.tiles as tiles
+
+    started, lock = [], threading.Lock()
+
+    def recording(*args):
+        with lock:
+            started.append(args[-3].origin[2])      # the sub-grid's z origin
+        return trace_tile(*args)
+
+    monkeypatch.setattr(tiles, "trace_tile", recording)
+    return started
+
+
+def test_prefetching_gives_the_same_slabs_and_traces_the_next_one_meanwhile(lattice, monkeypatch):
+    plan_on, kw = _slab_plan(lattice, True)
+    plan_off, _ = _slab_plan(lattice, False)
+    assert (plan_on.grid, plan_on.tile, plan_on.slab) == (plan_off.grid, plan_off.tile, plan_off.slab)
+    started = _recording_tracer(monkeypatch)
+    slabs = plan_on.slabs()
+    z_of = {ka: plan_on.grid.origin[2] + ka * plan_on.grid.layer_height for ka, _ in slabs}
+    got = []
+    for i, slab in enumerate(slice_planned(lattice, PX, **kw, plan=plan_on, progress=False).iter_slabs()):
+        if i + 1 < len(slabs):       # while the caller holds slab i, slab i + 1 is being traced
+            deadline = time.monotonic() + 60
+            while not any(abs(z - z_of[slabs[i + 1][0]]) < 1e-9 for z in started):
+                assert time.monotonic() < deadline, f"slab {i + 1} was not traced while slab {i} was held"
+                time.sleep(0.01)
+        got.append(layers(slab))
+    started.clear()
+    serial = []
+    for i, slab in enumerate(slice_planned(lattice, PX, **kw, plan=plan_off, progress=False).iter_slabs()):
+        if i + 1 < len(slabs):       # without prefetching, nothing of the next slab has started
+            assert not any(abs(z - z_of[slabs[i + 1][0]]) < 1e-9 for z in started)
+        serial.append(layers(slab))
+    assert np.array_equal(np.concatenate(got), np.concatenate(serial))
+    assert np.array_equal(np.concatenate(got), layers(slice_skeleton(lattice, PX, **kw)))
+
+
+def test_a_caller_that_stops_early_stops_the_prefetch(lattice, monkeypatch):
+    plan, kw = _slab_plan(lattice, True, slabs=5)
+    started = _recording_tracer(monkeypatch)
+    res = slice_planned(lattice, PX, **kw, plan=plan, progress=False)
+    it = res.iter_slabs()
+    next(it)
+    it.close()                       # waits for the slab in flight, starts no other
+    before = len(started)
+    time.sleep(0.2)
+    assert len(started) == before
+    z2 = plan.grid.origin[2] + plan.slabs()[2][0] * plan.grid.layer_height
+    assert not any(abs(z - z2) < 1e-9 for z in started)
+    assert not any(t.name.startswith("next-slab") for t in threading.enumerate())
+
+
+def test_a_failure_while_prefetching_reaches_the_caller(lattice, monkeypatch):
+    import slicer.tiles as tiles
+
+    plan, kw = _slab_plan(lattice, True, slabs=3)
+    z1 = plan.grid.origin[2] + plan.slabs()[1][0] * plan.grid.layer_height
+
+    def failing(*args):
+        if abs(args[-3].origin[2] - z1) < 1e-9:
+            raise MemoryError("tile of slab 1")
+        return trace_tile(*args)
+
+    monkeypatch.setattr(tiles, "trace_tile", failing)
+    it = slice_planned(lattice, PX, **kw, plan=plan, progress=False).iter_slabs()
+    next(it)
+    with pytest.raises(MemoryError, match="tile of slab 1"):
+        next(it)
+
+
+def test_prefetching_plans_fit_two_slabs_in_the_budget(lattice):
+    kw = dict(pixel_size=PX, tile=32, process_bytes=0, sample=True)
+    budget = _budget(lattice, 2, pixel_size=PX, tile=32)
+    off = plan_slice(lattice, **kw, max_memory=budget, prefetch=False)
+    asked = plan_slice(lattice, **kw, max_memory=budget, prefetch=True)
+    assert asked.prefetch and not off.prefetch and off.n_slabs > 1
+    assert off.n_slabs < asked.n_slabs and asked.estimate["total"] <= budget
+    # the estimate holds the runs of two slabs: the same slabs written one by one need half
+    single = plan_slice(lattice, **kw, slab=asked.slab, prefetch=False)
+    assert asked.estimate["runs"] == pytest.approx(2 * single.estimate["runs"])
+    assert "the next is traced while one is written" in asked.describe()
+    # by default: never more slabs for it -- prefetch only when two planned slabs fit anyway
+    auto = plan_slice(lattice, **kw, max_memory=budget)
+    assert (auto.slab, auto.prefetch) == (off.slab, False)
+    roomy = plan_slice(lattice, **kw, max_memory=budget, slab=asked.slab)
+    assert roomy.prefetch and roomy.slab == asked.slab
+    # one slab never prefetches
+    assert not plan_slice(lattice, **kw).prefetch
+    assert not plan_slice(lattice, **kw, prefetch=True).prefetch
+
+
+def test_prefetch_asked_for_with_too_small_a_budget_is_refused(lattice):
+    kw = dict(pixel_size=PX, tile=32, process_bytes=0, sample=True)
+    K = plan_slice(lattice, **kw).grid.layers
+    L = -(-K // 3)
+    budget = plan_slice(lattice, **kw, slab=L, prefetch=False).estimate["total"]
+    assert not plan_slice(lattice, **kw, max_memory=budget, slab=L).prefetch
+    with pytest.raises(GridError, match=r"too small for two slabs of \d+ layers \(--prefetch\).*--no-prefetch"):
+        plan_slice(lattice, **kw, max_memory=budget, slab=L, prefetch=True)

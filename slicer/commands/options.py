@@ -88,7 +88,7 @@ print_options = _stack(
                  help="Bottom layers (Prusa: faded layers) (default: printer's)."),
 )
 
-#: --max-memory, --executor, --scheduler, --workers, --tile, --slab
+#: --max-memory, --executor, --scheduler, --workers, --tile, --slab, --prefetch
 scale_options = _stack(
     click.option("--max-memory", default="auto", show_default=True, metavar="SIZE",
                  help="Memory budget (e.g. 4GB, 1.5GiB, none); tiles and slabs are planned to fit it. "
@@ -102,6 +102,9 @@ scale_options = _stack(
     click.option("--tile", type=click.IntRange(min=1), default=None, help="Tile edge, px (default: planned)."),
     click.option("--slab", type=click.IntRange(min=1), default=None,
                  help="Layers traced and written per slab (default: as many as --max-memory allows)."),
+    click.option("--prefetch/--no-prefetch", default=None,
+                 help="With several slabs, trace the next slab while one is written; --prefetch sizes the "
+                      "slabs so that two fit --max-memory (default: only when two planned slabs fit anyway)."),
 )
 
 #: --radius (OBJ scenes without radii)

@@ -1,0 +1,59 @@
+"""Linear-time stable orders (slicer.ordering): NumPy's stable sorts are the reference."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from slicer.ordering import lexsort2, stable_argsort
+
+# keys spanning one, two and three radix digits, with many ties at the low end
+_KEYS = st.one_of(
+    arrays(np.int64, st.integers(0, 300), elements=st.integers(0, 7)),
+    arrays(np.int64, st.integers(0, 300), elements=st.integers(0, 2**16 + 5)),
+    arrays(np.int64, st.integers(0, 300), elements=st.integers(0, 2**40)),
+    arrays(np.int64, st.integers(0, 300), elements=st.sampled_from([0, 65535, 65536, 2**32 - 1, 2**32, 2**48 - 1])),
+)
+
+
+@given(_KEYS)
+def test_stable_argsort_is_numpys_stable_argsort(keys):
+    assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
+
+
+@given(_KEYS, st.data())
+def test_lexsort2_is_numpys_lexsort(major, data):
+    minor = data.draw(arrays(np.int64, major.shape, elements=st.integers(0, 2**20)))
+    assert np.array_equal(lexsort2(minor, major), np.lexsort((minor, major)))
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int32, np.uint32, np.int64, np.uint64])
+def test_any_integer_dtype(dtype):
+    keys = np.random.default_rng(3).integers(0, np.iinfo(dtype).max // 2 + 1, 5000, dtype=np.uint64).astype(dtype)
+    keys[::7] = keys[3]                       # ties keep their input order
+    assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
+
+
+def test_keys_beyond_the_radix_fall_back_to_numpy():
+    rng = np.random.default_rng(4)
+    negative = rng.integers(-1000, 1000, 2000)
+    wide = rng.integers(0, 2**62, 2000)
+    wide[::5] = wide[1]
+    for keys in (negative, wide, np.array([2**64 - 1, 0, 2**64 - 1], np.uint64)):
+        assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
+
+
+def test_large_arrays_of_layer_and_pixel_keys():
+    rng = np.random.default_rng(5)
+    layer = rng.integers(0, 1009, 300_000)
+    pixel = rng.integers(0, 4000 * 2500, 300_000)
+    assert np.array_equal(stable_argsort(layer), np.argsort(layer, kind="stable"))
+    assert np.array_equal(lexsort2(layer, pixel), np.lexsort((layer, pixel)))
+
+
+@pytest.mark.parametrize("bad", [np.zeros(4), np.zeros((2, 2), np.int64), np.array(["a", "b"])])
+def test_non_integer_or_not_1d_keys_are_refused(bad):
+    with pytest.raises(TypeError, match="1-D integer array"):
+        stable_argsort(bad)
