@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/million_struts.py [--struts 1000000] [--width 4000 --height 2500]
         [--layers 1000] [--max-memory 4GB] [--format zip] [--executor serial] [--workers N]
-        [--slab N] [--no-prefetch] [--out DIR] [--json result.json] [--keep]
+        [--slab N] [--prefetch | --no-prefetch] [--out DIR] [--json result.json] [--keep]
 
 A body-centred-cubic lattice (8 struts per cell, radius 6 % of the cell) is
 generated with :func:`slicer.lattice.generate_lattice`, with cells laid out
@@ -74,8 +74,10 @@ def main(argv=None) -> dict:
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--slab", type=int, default=None, help="layers per slab (default: planned)")
-    ap.add_argument("--no-prefetch", action="store_true",
-                    help="write each slab before tracing the next (default: trace the next meanwhile)")
+    ap.add_argument("--prefetch", dest="prefetch", action="store_true", default=None,
+                    help="trace the next slab while one is written, slabs sized for two "
+                         "(default: only when two planned slabs fit)")
+    ap.add_argument("--no-prefetch", dest="prefetch", action="store_false", help="never prefetch")
     ap.add_argument("--out", default=None, help="output folder (default: a temporary one, removed)")
     ap.add_argument("--keep", action="store_true", help="keep the archive")
     ap.add_argument("--json", default=None, help="also write the result here")
@@ -112,7 +114,7 @@ def main(argv=None) -> dict:
         summary = run_slice(skel, out, pixel_size=px, pixel_size_y=py, layer_height=h, bounds=bounds,
                             threads=args.threads, fmt=args.format, force=True, progress=False,
                             max_memory=budget, executor=ex, executor_info=info, report=plan_text.append,
-                            slab=args.slab, prefetch=not args.no_prefetch)
+                            slab=args.slab, prefetch=args.prefetch)
     t_job = time.perf_counter() - t1
     peak = peak_rss()
     size = out.stat().st_size if out.is_file() else sum(f.stat().st_size for f in out.rglob("*") if f.is_file())

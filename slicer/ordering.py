@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._kernels.order import DIGIT_BITS, stable_order
+from ._kernels.order import DIGIT_BITS, run_events_by_layer, stable_order
 
 #: keys wider than this many radix digits fall back to NumPy's merge sort
 MAX_PASSES = 3
@@ -72,4 +72,37 @@ def lexsort2(minor: np.ndarray, major: np.ndarray) -> np.ndarray:
     return first[stable_argsort(np.asarray(major)[first])]
 
 
-__all__ = ["stable_argsort", "lexsort2"]
+def layer_events(pix: np.ndarray, k0: np.ndarray, k1: np.ndarray, layers: int, value: int = 255):
+    """The set and clear events of inside runs, grouped by layer.
+
+    Parameters
+    ----------
+    pix, k0, k1 : (r,) int64
+        Runs ``[k0, k1)`` of layer indices of pixel ``pix`` (``0 <= k0 < k1 <= layers``).
+    layers : int
+    value : int
+        The grey a run sets (0..255).
+
+    Returns
+    -------
+    starts : (layers + 1,) int64
+        The events of layer k are ``[starts[k], starts[k + 1])``.
+    ev_pix : (2 r,) int64
+    ev_val : (2 r,) uint8
+        Within a layer the sets (``value``), then the clears (0), each in run
+        order: the events ``concatenate([k0, k1])`` in stable layer order.
+
+    Raises
+    ------
+    ValueError
+        A run outside ``[0, layers]`` or empty (the kernel would write out of bounds).
+    """
+    k0 = np.ascontiguousarray(k0, dtype=np.int64)
+    k1 = np.ascontiguousarray(k1, dtype=np.int64)
+    if k0.size and (k0.min() < 0 or k1.max() > layers or np.any(k1 <= k0)):
+        bad = int(np.flatnonzero((k0 < 0) | (k1 > layers) | (k1 <= k0))[0])
+        raise ValueError(f"run {bad} covers layers [{k0[bad]}, {k1[bad]}), not a non-empty range of [0, {layers})")
+    return run_events_by_layer(np.ascontiguousarray(pix, dtype=np.int64), k0, k1, int(layers), np.uint8(value))
+
+
+__all__ = ["stable_argsort", "lexsort2", "layer_events"]

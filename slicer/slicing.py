@@ -21,7 +21,7 @@ from .blend import require_traceable
 from .buckets import Buckets, build_buckets, thread_order
 from .errors import GridError
 from .grid import SliceGrid, make_grid
-from .ordering import lexsort2, stable_argsort
+from .ordering import layer_events, lexsort2, stable_argsort
 from .skeleton import Skeleton
 
 #: tracing methods and their kernel codes
@@ -92,12 +92,7 @@ class SliceResult:
         """
         g = self.grid
         K = g.layers
-        ev_k = np.concatenate([self.k0, self.k1])
-        ev_pix = np.concatenate([self.pix, self.pix])
-        ev_val = np.concatenate([np.full(self.n_runs, value, np.uint8), np.zeros(self.n_runs, np.uint8)])
-        order = stable_argsort(ev_k)
-        ev_k, ev_pix, ev_val = ev_k[order], ev_pix[order], ev_val[order]
-        bounds = np.searchsorted(ev_k, np.arange(K + 1))
+        bounds, ev_pix, ev_val = layer_events(self.pix, self.k0, self.k1, K, value)
         img = np.zeros(g.width * g.height, np.uint8)
         for k in range(K):
             s, e = bounds[k], bounds[k + 1]

@@ -1,13 +1,15 @@
 """Linear-time stable orders (slicer.ordering): NumPy's stable sorts are the reference."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from slicer.ordering import lexsort2, stable_argsort
+from slicer.ordering import layer_events, lexsort2, stable_argsort
 
 # keys spanning one, two and three radix digits, with many ties at the low end
 _KEYS = st.one_of(
@@ -57,3 +59,27 @@ def test_large_arrays_of_layer_and_pixel_keys():
 def test_non_integer_or_not_1d_keys_are_refused(bad):
     with pytest.raises(TypeError, match="1-D integer array"):
         stable_argsort(bad)
+
+
+@given(st.integers(1, 40), st.data())
+def test_layer_events_are_the_events_in_stable_layer_order(layers, data):
+    n = data.draw(st.integers(0, 200))
+    k0 = np.array(data.draw(st.lists(st.integers(0, layers - 1), min_size=n, max_size=n)), np.int64)
+    length = np.array(data.draw(st.lists(st.integers(1, layers), min_size=n, max_size=n)), np.int64)
+    k1 = np.minimum(k0 + length, layers)
+    pix = np.array(data.draw(st.lists(st.integers(0, 50), min_size=n, max_size=n)), np.int64)
+    value = data.draw(st.integers(1, 255))
+    ev_k = np.concatenate([k0, k1])
+    ev_pix = np.concatenate([pix, pix])
+    ev_val = np.concatenate([np.full(n, value, np.uint8), np.zeros(n, np.uint8)])
+    order = np.argsort(ev_k, kind="stable")
+    starts, got_pix, got_val = layer_events(pix, k0, k1, layers, value)
+    assert np.array_equal(starts, np.searchsorted(ev_k[order], np.arange(layers + 1)))
+    assert np.array_equal(got_pix, ev_pix[order]) and np.array_equal(got_val, ev_val[order])
+
+
+@pytest.mark.parametrize("k0, k1, where", [([0, 3], [2, 6], "run 1 covers layers [3, 6)"),
+                                          ([0, -1], [2, 1], "run 1"), ([2], [2], "run 0 covers layers [2, 2)")])
+def test_layer_events_refuse_runs_outside_the_layers(k0, k1, where):
+    with pytest.raises(ValueError, match=re.escape(where)):
+        layer_events(np.zeros(len(k0), np.int64), np.array(k0), np.array(k1), 5)

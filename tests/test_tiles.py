@@ -296,7 +296,7 @@ def test_streaming_bounds_the_memory_of_runs():
         return run
 
     big, small = _peak(consume(one)), _peak(consume(many))
-    assert small < big / 3, (small, big)
+    assert small <= many.estimate["total"] and small < big / 2, (small, big, many.estimate["total"])
 
 
 def test_streamed_result_is_placed_on_a_plate_like_the_untiled_one(lattice, reference):
@@ -432,7 +432,7 @@ def test_prefetch_asked_for_with_too_small_a_budget_is_refused(lattice):
     kw = dict(pixel_size=PX, tile=32, process_bytes=0, sample=True)
     K = plan_slice(lattice, **kw).grid.layers
     L = -(-K // 3)
-    budget = plan_slice(lattice, **kw, slab=L, prefetch=False).estimate["total"]
+    budget = int(plan_slice(lattice, **kw, slab=L, prefetch=False).estimate["total"]) + 1
     assert not plan_slice(lattice, **kw, max_memory=budget, slab=L).prefetch
     with pytest.raises(GridError, match=r"too small for two slabs of \d+ layers \(--prefetch\).*--no-prefetch"):
         plan_slice(lattice, **kw, max_memory=budget, slab=L, prefetch=True)

@@ -73,3 +73,49 @@ def stable_order(keys, passes):
             ksorted, korder = korder, ksorted
             order, otmp = otmp, order
     return order
+
+
+@kernel
+def run_events_by_layer(pix, k0, k1, layers, value):
+    """The set and clear events of inside runs, grouped by layer.
+
+    Each run ``[k0, k1)`` of pixel ``pix`` sets the pixel to ``value`` at layer
+    k0 and clears it at layer k1. Within a layer, the sets come first, then
+    the clears, each in run order: exactly the stable order of the events
+    ``concatenate([k0, k1])`` by layer, without sorting or gathering.
+
+    Parameters
+    ----------
+    pix, k0, k1 : (r,) int64
+        Runs; ``0 <= k0 < k1 <= layers``.
+    layers : int
+    value : uint8
+
+    Returns
+    -------
+    starts : (layers + 1,) int64
+        The events of layer k are ``[starts[k], starts[k + 1])``.
+    ev_pix : (2 r,) int64
+    ev_val : (2 r,) uint8
+    """
+    n = pix.shape[0]
+    pos = np.zeros(layers + 2, np.int64)
+    for i in range(n):
+        pos[k0[i] + 1] += 1
+        pos[k1[i] + 1] += 1
+    for k in range(layers + 1):
+        pos[k + 1] += pos[k]
+    starts = pos[:layers + 1].copy()
+    ev_pix = np.empty(2 * n, np.int64)
+    ev_val = np.empty(2 * n, np.uint8)
+    for i in range(n):
+        d = k0[i]
+        ev_pix[pos[d]] = pix[i]
+        ev_val[pos[d]] = value
+        pos[d] += 1
+    for i in range(n):
+        d = k1[i]
+        ev_pix[pos[d]] = pix[i]
+        ev_val[pos[d]] = 0
+        pos[d] += 1
+    return starts, ev_pix, ev_val
