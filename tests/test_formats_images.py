@@ -620,3 +620,52 @@ def test_signal_mid_write_leaves_no_output(tmp_path, ext, sig):
     wait_mid_write(proc, out, size=started)
     interrupt_and_check(proc, out, sig)
     assert [p.name for p in tmp_path.iterdir() if not p.name.startswith(".")] == ["tall.json"]
+
+
+# ----------------------------------------------------------------------------- layer PNGs
+def _png_chunks(data: bytes) -> list[tuple[bytes, bytes]]:
+    """Chunks of a PNG, each CRC checked (PNG 1.2 §5)."""
+    import zlib
+
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, out = 8, []
+    while pos < len(data):
+        (n,) = struct.unpack(">I", data[pos:pos + 4])
+        kind, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + n]
+        (crc,) = struct.unpack(">I", data[pos + 8 + n:pos + 12 + n])
+        assert crc == zlib.crc32(kind + body), kind
+        out.append((kind, body))
+        pos += 12 + n
+    return out
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 70), st.integers(1, 70), st.booleans(), st.integers(0, 2**32 - 1))
+def test_layer_pngs_decode_to_the_image(h, w, rgb, seed):
+    import io
+    import zlib
+
+    from formats.base import png_bytes
+
+    rng = np.random.default_rng(seed)
+    shape = (h, w, 3) if rgb else (h, w)
+    img = np.where(rng.random(shape) < 0.5, 0, 255).astype(np.uint8)
+    img[rng.random(shape) < 0.1] = rng.integers(1, 255)           # some grey too
+    data = png_bytes(img)
+    decoded = Image.open(io.BytesIO(data))
+    assert decoded.mode == ("RGB" if rgb else "L")
+    assert np.array_equal(np.asarray(decoded), img)
+    chunks = _png_chunks(data)
+    assert [k for k, _ in chunks] == [b"IHDR", b"IDAT", b"IEND"]
+    assert struct.unpack(">IIBBBBB", chunks[0][1]) == (w, h, 8, 2 if rgb else 0, 0, 0, 0)
+    rows = np.frombuffer(zlib.decompress(chunks[1][1]), np.uint8).reshape(h, -1)
+    assert np.all(rows[:, 0] == 0) and np.array_equal(rows[:, 1:].reshape(shape), img)
+
+
+@pytest.mark.parametrize("bad", [np.zeros((2, 3, 4), np.uint8), np.zeros(5, np.uint8), np.zeros((0, 4), np.uint8)])
+def test_layer_png_refuses_what_it_cannot_hold(bad):
+    from formats.base import png_bytes
+    from slicer.errors import FormatError
+
+    with pytest.raises(FormatError, match="PNG"):
+        png_bytes(bad)
