@@ -38,6 +38,7 @@ from .._kernels.cellbounds import SLACK, disc_bounds, disc_bounds_binned
 from .._kernels.contours import chain_rings
 from ..errors import OptionError
 from ..field import point_grid, support_boxes
+from ..ordering import stable_argsort
 from ..skeleton import Skeleton
 from .roots import FIELD_SLACK, _field, solve_crossings
 from .simplify import CHORD_FRACTION
@@ -293,23 +294,13 @@ def _known_values(px, py, kx, ky, kf, ymax: int) -> np.ndarray:
         return out
     big = np.int64(ymax + 1)
     key = kx * big + ky
-    order = np.argsort(key)
+    order = stable_argsort(key)
     key = key[order]
     want = px * big + py
     j = np.minimum(np.searchsorted(key, want), key.size - 1)
     hit = key[j] == want
     out[hit] = kf[order[j[hit]]]
     return out
-
-
-def _edge_points(line: np.ndarray, keys_line: np.ndarray, keys_pos: np.ndarray,
-                 a: np.ndarray, b: np.ndarray, big: int):
-    """Lattice points strictly inside each edge ``(line, a..b)``: the slice
-    ``[start, stop)`` of the points sorted by ``(line, pos)``."""
-    key = keys_line * big + keys_pos
-    start = np.searchsorted(key, line * big + a, side="right")
-    stop = np.searchsorted(key, line * big + b, side="left")
-    return start, stop
 
 
 def _boundary_walks(X0, Y0, X1, Y1):
@@ -328,23 +319,31 @@ def _boundary_walks(X0, Y0, X1, Y1):
     cx = np.concatenate([X0, X1, X1, X0])
     cy = np.concatenate([Y0, Y0, Y1, Y1])
     big = int(max(cx.max(), cy.max())) + 2
-    uniq = np.unique(cy * big + cx)
-    py, px = np.divmod(uniq, big)
-    # points sorted by row (for horizontal edges): uniq already is (y, x) order
-    by_row_y, by_row_x = py, px
-    col_key = px * big + py
-    ocol = np.argsort(col_key, kind="stable")
-    by_col_x, by_col_y = px[ocol], py[ocol]
     n = X0.size
+    # the corners as unique points in (y, x) order, and each corner's point
+    keys = cy * big + cx
+    order = stable_argsort(keys)
+    sk = keys[order]
+    first = np.empty(sk.size, bool)
+    first[0] = True
+    np.not_equal(sk[1:], sk[:-1], out=first[1:])
+    uniq = sk[first]
+    point_of = np.empty(keys.size, np.int64)
+    point_of[order] = np.cumsum(first) - 1
+    c_bl, c_br, c_tr, c_tl = (point_of[i * n:(i + 1) * n] for i in range(4))
+    py, px = np.divmod(uniq, big)
+    # the same points in (x, y) order, and each point's rank there
+    ocol = stable_argsort(px * big + py)
+    col_rank = np.empty(ocol.size, np.int64)
+    col_rank[ocol] = np.arange(ocol.size)
     # the four sides, each a run of interior points in walk order
     # bottom: y = Y0, x from X0 to X1 (increasing); right: x = X1, y increasing;
-    # top: y = Y1, x decreasing; left: x = X0, y decreasing
-    bs, be = _edge_points(Y0, by_row_y, by_row_x, X0, X1, big)
-    rs, re = _edge_points(X1, by_col_x, by_col_y, Y0, Y1, big)
-    ts, te = _edge_points(Y1, by_row_y, by_row_x, X0, X1, big)
-    ls, le = _edge_points(X0, by_col_x, by_col_y, Y0, Y1, big)
-    corner = lambda x, y: np.searchsorted(uniq, y * big + x)   # noqa: E731
-    c_bl, c_br, c_tr, c_tl = corner(X0, Y0), corner(X1, Y0), corner(X1, Y1), corner(X0, Y1)
+    # top: y = Y1, x decreasing; left: x = X0, y decreasing. The points strictly
+    # inside a side lie between its two corners in row (column) order.
+    bs, be = c_bl + 1, c_br
+    rs, re = col_rank[c_br] + 1, col_rank[c_tr]
+    ts, te = c_tl + 1, c_tr
+    ls, le = col_rank[c_bl] + 1, col_rank[c_tl]
     counts = 4 + (be - bs) + (re - rs) + (te - ts) + (le - ls)
     leaf = np.repeat(np.arange(n, dtype=np.int64), counts)
     off = np.concatenate([[0], np.cumsum(counts)[:-1]])
