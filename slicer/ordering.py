@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._kernels.order import DIGIT_BITS, run_events_by_layer, stable_order
+from ._kernels.order import DIGIT_BITS, rect_parts_order, run_events_by_layer, stable_order
 
 #: keys wider than this many radix digits fall back to NumPy's merge sort
 MAX_PASSES = 3
@@ -105,4 +105,52 @@ def layer_events(pix: np.ndarray, k0: np.ndarray, k1: np.ndarray, layers: int, v
     return run_events_by_layer(np.ascontiguousarray(pix, dtype=np.int64), k0, k1, int(layers), np.uint8(value))
 
 
-__all__ = ["stable_argsort", "lexsort2", "layer_events"]
+def rect_parts(parts, width: int, minor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Plate pixels of items held by non-overlapping rectangles, and their stable order.
+
+    Parameters
+    ----------
+    parts : list of (i0, j0, tw, th, local)
+        A rectangle of ``th`` rows and ``tw`` columns whose corner is plate
+        column ``i0``, row ``j0``, and the local indices ``jl * tw + il`` of
+        its items (a 1-D integer array). Parts in any order; items of all
+        parts are numbered in the order of ``parts``.
+    width : int
+        Plate width, px.
+    minor : (n,) integer array, optional
+        A secondary key: the order is then by pixel, then ``minor``.
+
+    Returns
+    -------
+    pix : (n,) int64
+        Each item's plate pixel ``(j0 + jl) * width + i0 + il``.
+    order : (n,) int64
+        Equal to ``np.argsort(pix, kind="stable")`` (with ``minor``:
+        ``np.lexsort((minor, pix))``). When every part's indices are sorted
+        (the tracer's tiles and buckets), one pass over the plate's rows
+        gives it (:func:`slicer._kernels.order.rect_parts_order`); otherwise
+        a radix sort.
+    """
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    by_col = sorted(range(len(parts)), key=lambda p: (parts[p][0], parts[p][1]))
+    sizes = np.array([len(parts[p][4]) for p in by_col], np.int64)
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    local = np.concatenate([np.asarray(parts[p][4], np.int64) for p in by_col])
+    # item numbers in the callers' order of parts
+    first = np.concatenate([[0], np.cumsum([len(pt[4]) for pt in parts])])
+    renumber = np.concatenate([np.arange(first[p], first[p + 1], dtype=np.int64) for p in by_col])
+    keyed = np.zeros(0, np.int64) if minor is None else np.ascontiguousarray(np.asarray(minor, np.int64)[renumber])
+    cols = [np.array([parts[p][k] for p in by_col], np.int64) for k in range(4)]
+    ok, order, pix_sorted_parts = rect_parts_order(local, starts, cols[0], cols[1], cols[2], cols[3], int(width), keyed)
+    pix = np.empty_like(pix_sorted_parts)
+    pix[renumber] = pix_sorted_parts
+    if not ok:
+        for (i0, j0, tw, th, loc), a, b in zip(parts, first[:-1], first[1:]):
+            jl, il = np.divmod(np.asarray(loc, np.int64), tw)
+            pix[a:b] = (j0 + jl) * width + i0 + il
+        return pix, (stable_argsort(pix) if minor is None else lexsort2(minor, pix))
+    return pix, renumber[order]
+
+
+__all__ = ["stable_argsort", "lexsort2", "layer_events", "rect_parts"]

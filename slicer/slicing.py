@@ -21,7 +21,7 @@ from .blend import require_traceable
 from .buckets import Buckets, build_buckets, thread_order
 from .errors import GridError
 from .grid import SliceGrid, make_grid
-from .ordering import layer_events, lexsort2, stable_argsort
+from .ordering import layer_events, rect_parts, stable_argsort
 from .skeleton import Skeleton
 
 #: tracing methods and their kernel codes
@@ -229,6 +229,7 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
     # biggest buckets first; within a launch, thread_order balances static schedules too
     todo = todo[np.argsort(-np.diff(bk.offsets)[todo], kind="stable")]
     ly, lx = np.divmod(np.arange(B * B), B)   # local row/column of each ray in a bucket
+    rays = np.arange(B * B, dtype=np.int64)
     pix_parts, k0_parts, k1_parts = [], [], []
     xpix_parts, xz_parts = [], []
     nevals = 0
@@ -245,19 +246,19 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
             for bidx, nrun, rk0, rk1, ne, nx, xz in results:
                 nevals += ne
                 by, bx = divmod(int(bidx), bk.nbx)
-                ray_pix = (by * B + ly) * grid.width + (bx * B + lx)
-                pix_parts.append(np.repeat(ray_pix, nrun))
+                pix_parts.append((bx * B, by * B, B, B, np.repeat(rays, nrun)))
                 k0_parts.append(rk0)
                 k1_parts.append(rk1)
                 if spans:
+                    ray_pix = (by * B + ly) * grid.width + (bx * B + lx)
                     xpix_parts.append(np.repeat(ray_pix, nx))
                     xz_parts.append(xz)
     elapsed = time.perf_counter() - t0
     if pix_parts:
-        pix = np.concatenate(pix_parts).astype(np.int64)
         k0 = np.concatenate(k0_parts).astype(np.int64)
         k1 = np.concatenate(k1_parts).astype(np.int64)
-        order = lexsort2(k0, pix)
+        # by pixel, then k0: the buckets' runs, each bucket in ray order, merged row by row
+        pix, order = rect_parts(pix_parts, grid.width, minor=k0)
         pix, k0, k1 = pix[order], k0[order], k1[order]
     else:
         pix = np.zeros(0, np.int64)

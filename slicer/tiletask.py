@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .grid import SliceGrid
-from .ordering import stable_argsort
+from .ordering import rect_parts
 from .skeleton import Skeleton
 from .slicing import SliceResult, trace
 
@@ -174,13 +174,13 @@ def merge_tiles(grid: SliceGrid, parts: list, stats: dict | None = None) -> Slic
             default = {"pix": np.zeros(0, np.int64), "k0": np.zeros(0, np.int64), "k1": np.zeros(0, np.int64)}
             out.update({n: default.get(n) for n in members})
             continue
-        pix = []
+        rects = []
         for i0, j0, tw, arrays in parts:
-            local = arrays[key].astype(np.int64)
-            jl, il = np.divmod(local, tw)
-            pix.append((j0 + jl) * grid.width + (i0 + il))
-        pix = np.concatenate(pix)
-        order = stable_argsort(pix)
+            local = np.asarray(arrays[key])
+            rows = int(local.max()) // tw + 1 if local.size else 0
+            rects.append((i0, j0, tw, rows, local))
+        # tiles are sorted by pixel: merged row by row of the plate (else sorted)
+        pix, order = rect_parts(rects, grid.width)
         out[key] = pix[order]
         for n in members:
             if n == key:

@@ -5,11 +5,11 @@ import re
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from slicer.ordering import layer_events, lexsort2, stable_argsort
+from slicer.ordering import layer_events, lexsort2, rect_parts, stable_argsort
 
 # keys spanning one, two and three radix digits, with many ties at the low end
 _KEYS = st.one_of(
@@ -20,11 +20,13 @@ _KEYS = st.one_of(
 )
 
 
+@settings(deadline=None)        # the first example may compile the kernel
 @given(_KEYS)
 def test_stable_argsort_is_numpys_stable_argsort(keys):
     assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
 
 
+@settings(deadline=None)
 @given(_KEYS, st.data())
 def test_lexsort2_is_numpys_lexsort(major, data):
     minor = data.draw(arrays(np.int64, major.shape, elements=st.integers(0, 2**20)))
@@ -61,6 +63,7 @@ def test_non_integer_or_not_1d_keys_are_refused(bad):
         stable_argsort(bad)
 
 
+@settings(deadline=None)
 @given(st.integers(1, 40), st.data())
 def test_layer_events_are_the_events_in_stable_layer_order(layers, data):
     n = data.draw(st.integers(0, 200))
@@ -83,3 +86,32 @@ def test_layer_events_are_the_events_in_stable_layer_order(layers, data):
 def test_layer_events_refuse_runs_outside_the_layers(k0, k1, where):
     with pytest.raises(ValueError, match=re.escape(where)):
         layer_events(np.zeros(len(k0), np.int64), np.array(k0), np.array(k1), 5)
+
+
+@settings(deadline=None, max_examples=200)
+@given(st.integers(1, 30), st.integers(1, 30), st.integers(1, 12), st.data())
+def test_rect_parts_is_the_stable_order_of_plate_pixels(W, H, T, data):
+    """Tiles (or buckets, whose local width stays T at the plate's edge) with sorted
+    local indices, given in any order; some unsorted parts and a minor key too."""
+    bucket_like = data.draw(st.booleans())
+    parts = []
+    for j0 in range(0, H, T):
+        for i0 in range(0, W, T):
+            tw, th = min(T, W - i0), min(T, H - j0)
+            stride = T if bucket_like else tw
+            n = data.draw(st.integers(0, 2 * tw * th))
+            jl = np.array(data.draw(st.lists(st.integers(0, th - 1), min_size=n, max_size=n)), np.int64)
+            il = np.array(data.draw(st.lists(st.integers(0, tw - 1), min_size=n, max_size=n)), np.int64)
+            local = jl * stride + il
+            parts.append((i0, j0, stride, th, local if data.draw(st.booleans()) and n > 1 else np.sort(local)))
+    parts = data.draw(st.permutations(parts))
+    n = sum(len(p[4]) for p in parts)
+    minor = None
+    if data.draw(st.booleans()):
+        minor = np.array(data.draw(st.lists(st.integers(0, 3), min_size=n, max_size=n)), np.int64)
+    want_pix = np.concatenate([(j0 + loc // tw) * W + i0 + loc % tw for i0, j0, tw, _, loc in parts]) \
+        if parts else np.zeros(0, np.int64)
+    pix, order = rect_parts(parts, W, minor)
+    assert np.array_equal(pix, want_pix)
+    want = np.argsort(want_pix, kind="stable") if minor is None else np.lexsort((minor, want_pix))
+    assert np.array_equal(order, want)

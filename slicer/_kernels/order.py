@@ -119,3 +119,70 @@ def run_events_by_layer(pix, k0, k1, layers, value):
         ev_val[pos[d]] = 0
         pos[d] += 1
     return starts, ev_pix, ev_val
+
+
+@kernel
+def rect_parts_order(local, starts, i0, j0, tw, tr, width, minor):
+    """The order by plate pixel of items held by non-overlapping rectangles.
+
+    Part ``p`` holds items ``starts[p] .. starts[p + 1] - 1`` of ``local``:
+    indices ``jl * tw[p] + il`` in its own rectangle of ``tr[p]`` rows whose
+    corner is plate column ``i0[p]``, row ``j0[p]``, sorted ascending (items
+    of one index, when ``minor`` is not empty, with ``minor`` ascending).
+    Row by row of the plate, the parts crossing the row from left to right
+    each give their stretch of that row: one pass, no sort.
+
+    Parameters
+    ----------
+    local : (n,) int64
+    starts : (P + 1,) int64
+    i0, j0, tw, tr : (P,) int64
+        Parts in order of ``i0`` (left to right).
+    width : int
+        Plate width: plate pixel = ``(j0 + jl) * width + i0 + il``.
+    minor : (n,) int64 or (0,) int64
+        A secondary key that must ascend within each index (not checked when empty).
+
+    Returns
+    -------
+    ok : bool
+        False if a part is not sorted or an item lies outside its rectangle
+        or the plate (then ``order`` is meaningless).
+    order : (n,) int64
+        ``pix[order]`` ascending, ties in input order (the stable order).
+    pix : (n,) int64
+        Each item's plate pixel, in input order.
+    """
+    n = local.shape[0]
+    P = i0.shape[0]
+    order = np.empty(n, np.int64)
+    pix = np.empty(n, np.int64)
+    rows = 0
+    for p in range(P):
+        last = -1
+        w = tw[p]
+        for q in range(starts[p], starts[p + 1]):
+            v = local[q]
+            if v < last or v < 0 or v >= w * tr[p] or i0[p] + v % w >= width:
+                return False, order, pix
+            if v == last and minor.shape[0] > 0 and minor[q] <= minor[q - 1]:
+                return False, order, pix
+            last = v
+            pix[q] = (j0[p] + v // w) * width + i0[p] + v % w
+        rows = max(rows, j0[p] + tr[p])
+    cursor = starts[:P].copy()
+    out = 0
+    for j in range(rows):
+        for p in range(P):
+            jl = j - j0[p]
+            if jl < 0 or jl >= tr[p]:
+                continue
+            end = starts[p + 1]
+            c = cursor[p]
+            limit = (jl + 1) * tw[p]
+            while c < end and local[c] < limit:
+                order[out] = c
+                out += 1
+                c += 1
+            cursor[p] = c
+    return out == n, order, pix
