@@ -133,24 +133,18 @@ def rect_parts(parts, width: int, minor: np.ndarray | None = None) -> tuple[np.n
     """
     if not parts:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    by_col = sorted(range(len(parts)), key=lambda p: (parts[p][0], parts[p][1]))
-    sizes = np.array([len(parts[p][4]) for p in by_col], np.int64)
-    starts = np.concatenate([[0], np.cumsum(sizes)])
-    local = np.concatenate([np.asarray(parts[p][4], np.int64) for p in by_col])
-    # item numbers in the callers' order of parts
-    first = np.concatenate([[0], np.cumsum([len(pt[4]) for pt in parts])])
-    renumber = np.concatenate([np.arange(first[p], first[p + 1], dtype=np.int64) for p in by_col])
-    keyed = np.zeros(0, np.int64) if minor is None else np.ascontiguousarray(np.asarray(minor, np.int64)[renumber])
-    cols = [np.array([parts[p][k] for p in by_col], np.int64) for k in range(4)]
-    ok, order, pix_sorted_parts = rect_parts_order(local, starts, cols[0], cols[1], cols[2], cols[3], int(width), keyed)
-    pix = np.empty_like(pix_sorted_parts)
-    pix[renumber] = pix_sorted_parts
+    visit = np.array(sorted(range(len(parts)), key=lambda p: (parts[p][0], parts[p][1])), np.int64)
+    starts = np.concatenate([[0], np.cumsum([len(pt[4]) for pt in parts])]).astype(np.int64)
+    local = np.concatenate([np.asarray(pt[4]) for pt in parts]).astype(np.int64, copy=False)
+    keyed = np.zeros(0, np.int64) if minor is None else np.ascontiguousarray(minor, dtype=np.int64)
+    i0, j0, tw, th = (np.array([pt[k] for pt in parts], np.int64) for k in range(4))
+    ok, order, pix = rect_parts_order(local, starts, i0, j0, tw, th, visit, int(width), keyed)
     if not ok:
-        for (i0, j0, tw, th, loc), a, b in zip(parts, first[:-1], first[1:]):
-            jl, il = np.divmod(np.asarray(loc, np.int64), tw)
-            pix[a:b] = (j0 + jl) * width + i0 + il
+        for (a0, b0, w, _, loc), a, b in zip(parts, starts[:-1], starts[1:]):
+            jl, il = np.divmod(np.asarray(loc, np.int64), w)
+            pix[a:b] = (b0 + jl) * width + a0 + il
         return pix, (stable_argsort(pix) if minor is None else lexsort2(minor, pix))
-    return pix, renumber[order]
+    return pix, order
 
 
 __all__ = ["stable_argsort", "lexsort2", "layer_events", "rect_parts"]

@@ -122,7 +122,7 @@ def run_events_by_layer(pix, k0, k1, layers, value):
 
 
 @kernel
-def rect_parts_order(local, starts, i0, j0, tw, tr, width, minor):
+def rect_parts_order(local, starts, i0, j0, tw, tr, visit, width, minor):
     """The order by plate pixel of items held by non-overlapping rectangles.
 
     Part ``p`` holds items ``starts[p] .. starts[p + 1] - 1`` of ``local``:
@@ -137,7 +137,8 @@ def rect_parts_order(local, starts, i0, j0, tw, tr, width, minor):
     local : (n,) int64
     starts : (P + 1,) int64
     i0, j0, tw, tr : (P,) int64
-        Parts in order of ``i0`` (left to right).
+    visit : (P,) int64
+        The parts in order of ``i0`` (left to right).
     width : int
         Plate width: plate pixel = ``(j0 + jl) * width + i0 + il``.
     minor : (n,) int64 or (0,) int64
@@ -173,7 +174,8 @@ def rect_parts_order(local, starts, i0, j0, tw, tr, width, minor):
     cursor = starts[:P].copy()
     out = 0
     for j in range(rows):
-        for p in range(P):
+        for t in range(P):
+            p = visit[t]
             jl = j - j0[p]
             if jl < 0 or jl >= tr[p]:
                 continue
