@@ -19,7 +19,9 @@ def occupied(image: np.ndarray) -> tuple[int, int, int, int] | None:
     holding every non-zero pixel of a (h, w) image; None when it has none.
 
     One pass over the image's rows (fast on a row-major image), then one
-    over the columns of the rows found.
+    over the columns of the rows found. An image with a ``window`` attribute
+    (``(r0, r1, c0, c1)``, outside which it is zero: a
+    :class:`slicer.antialias.PlateImage`) is scanned inside the window only.
 
     Examples
     --------
@@ -28,6 +30,11 @@ def occupied(image: np.ndarray) -> tuple[int, int, int, int] | None:
     >>> occupied(np.zeros((2, 2), np.uint8)) is None
     True
     """
+    window = getattr(image, "window", None)
+    if window is not None:
+        R0, R1, C0, C1 = window
+        box = occupied(np.asarray(image)[R0:R1, C0:C1]) if R1 > R0 and C1 > C0 else None
+        return None if box is None else (box[0] + R0, box[1] + R0, box[2] + C0, box[3] + C0)
     rows = np.flatnonzero(image.any(axis=1))
     if rows.size == 0:
         return None

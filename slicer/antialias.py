@@ -219,14 +219,40 @@ def iter_exact_coverage(skel, result, aa_z: bool, tol: float) -> Iterator[np.nda
         yield cov / Z_PLANES
 
 
-def paste(canvas: np.ndarray, win: np.ndarray, top: int, left: int) -> None:
-    """Copy ``win`` into ``canvas`` at (top, left), clipped to the canvas."""
+def paste(canvas: np.ndarray, win: np.ndarray, top: int, left: int) -> tuple[int, int, int, int] | None:
+    """Copy ``win`` into ``canvas`` at (top, left), clipped to the canvas; returns
+    the rows and columns ``(r0, r1, c0, c1)`` written (half-open), None if none."""
     H, W = canvas.shape
     h, w = win.shape
     r0, c0 = max(top, 0), max(left, 0)
     r1, c1 = min(top + h, H), min(left + w, W)
     if r1 > r0 and c1 > c0:
         canvas[r0:r1, c0:c1] = win[r0 - top:r1 - top, c0 - left:c1 - left]
+        return r0, r1, c0, c1
+    return None
+
+
+class PlateImage(np.ndarray):
+    """A printer plate's layer image that knows where it may be non-zero.
+
+    ``window``: ``(r0, r1, c0, c1)`` (half-open rows and columns) outside
+    which every pixel is zero, or None (unknown). Writers that look for the
+    model's box (:func:`formats.rle.occupied`) then scan the window only, not
+    the whole plate (59 Mpx on a large printer). Views, copies and results of
+    operations are plain: their ``window`` is None.
+    """
+
+    window: tuple[int, int, int, int] | None = None
+
+    def __array_finalize__(self, obj) -> None:
+        self.window = None
+
+    @classmethod
+    def blank(cls, shape: tuple[int, int]) -> "PlateImage":
+        """An all-zero plate image whose window is empty."""
+        out = np.zeros(shape, np.uint8).view(cls)
+        out.window = (0, 0, 0, 0)
+        return out
 
 
 def _coverage(result, settings, skel, tol) -> Iterator[np.ndarray]:
@@ -279,14 +305,15 @@ def _plate_layers(result, pl, settings, skel=None, tol: float = 1e-3) -> Iterato
             continue
         if k >= pl.k_first + pl.layers:
             break
-        canvas = np.zeros(shape, np.uint8)
+        canvas = PlateImage.blank(shape)
         if settings.antialiased:
             cov, (top, left) = box_filter(img, pl.aa, (pl.dj, pl.di))
-            paste(canvas, grey_from_coverage(cov, settings.gamma), top, left)
+            window = paste(canvas, grey_from_coverage(cov, settings.gamma), top, left)
         else:
-            paste(canvas, img, pl.dj, pl.di)
+            window = paste(canvas, img, pl.dj, pl.di)
+        canvas.window = window or (0, 0, 0, 0)
         yield canvas
 
 
 __all__ = ["polygon_coverage", "iter_exact_coverage", "is_exact", "Z_PLANES", "grey_from_coverage", "box_filter", "output_grid", "iter_sub_coverage", "check_aa", "paste",
-           "output_layers"]
+           "PlateImage", "output_layers"]

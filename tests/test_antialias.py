@@ -220,3 +220,46 @@ def test_aa_z_without_spans_is_a_clear_error():
     grid, layers = render(res, PrintSettings(None, 0.5, aa_z=True))
     with pytest.raises(GridError, match="spans"):
         next(iter(layers))
+
+
+# ----------------------------------------------------------------------------- plate images
+@settings(deadline=None, max_examples=60)
+@given(st.integers(1, 30), st.integers(1, 30), st.data())
+def test_a_plate_image_is_scanned_inside_its_window_only_with_the_same_box(H, W, data):
+    from formats.rle import occupied
+    from slicer.antialias import PlateImage
+
+    r0 = data.draw(st.integers(0, H))
+    r1 = data.draw(st.integers(r0, H))
+    c0 = data.draw(st.integers(0, W))
+    c1 = data.draw(st.integers(c0, W))
+    img = PlateImage.blank((H, W))
+    if r1 > r0 and c1 > c0:
+        rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+        img[r0:r1, c0:c1] = np.where(rng.random((r1 - r0, c1 - c0)) < data.draw(st.floats(0, 1)), 200, 0)
+    img.window = (r0, r1, c0, c1)
+    assert occupied(img) == occupied(np.asarray(img))
+    # what is derived from it knows nothing of the window
+    assert img[1:].window is None and img.T.window is None and img.copy().window is None
+    assert (img >= 128).window is None
+
+
+@pytest.mark.parametrize("aa", [1, 2])
+def test_plate_layers_know_where_the_model_is(aa):
+    from formats.printers import get_printer
+    from formats.rle import occupied
+
+    s = Skeleton([[0, 0, 0], [3, 1, 2]], [[0, 1]], [[0.4, 0.6]])
+    prn = get_printer("prusa-sl1s")
+    res = slice_skeleton(s, prn.pixel_size[0] / aa, layer_height=0.05)
+    grid, layers = render(res, PrintSettings(prn, 0.05, aa=aa))
+    seen = 0
+    for img in layers:
+        r0, r1, c0, c1 = img.window
+        plain = np.asarray(img)
+        outside = plain.copy()
+        outside[r0:r1, c0:c1] = 0
+        assert not outside.any()                 # nothing outside the window
+        assert occupied(img) == occupied(plain)
+        seen += plain.any()
+    assert seen > 5
