@@ -96,7 +96,7 @@ class Band:
         c0, c1 = self.cols
         if c0 == 0 and c1 == self.shape[1]:
             return Band(np.ascontiguousarray(fn(self.rows), dtype=np.uint8), self.r0, self.shape, self.cols)
-        rows = np.zeros_like(self.rows)
+        rows = np.zeros(self.rows.shape, np.uint8)      # (calloc: only the window's pages are touched)
         rows[:, c0:c1] = fn(self.rows[:, c0:c1])
         return Band(rows, self.r0, self.shape, self.cols)
 

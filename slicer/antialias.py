@@ -46,6 +46,7 @@ Without anti-aliasing the layers stay exactly 0/255.
 """
 from __future__ import annotations
 
+import sys
 from typing import Iterator
 
 import numpy as np
@@ -254,6 +255,39 @@ class PlateImage(np.ndarray):
         out.window = (0, 0, 0, 0)
         return out
 
+    def clear(self) -> None:
+        """Zero the window and empty it (only the window can be non-zero)."""
+        r0, r1, c0, c1 = self.window if self.window is not None else (0, self.shape[0], 0, self.shape[1])
+        np.asarray(self)[r0:r1, c0:c1] = 0
+        self.window = (0, 0, 0, 0)
+
+
+class PlatePool:
+    """Plate images reused once nobody else holds them.
+
+    A fresh plate (59 Mpx on a large printer) costs a page fault per page the
+    layer is pasted into, every layer. A plate whose only reference is the
+    pool's (no writer, encoder thread or view still holds it) is cleared --
+    its window only -- and handed out again; otherwise a new one is made (at
+    most ``size`` are kept).
+    """
+
+    def __init__(self, shape: tuple[int, int], size: int = 16):
+        self.shape = shape
+        self.size = size
+        self._plates: list[PlateImage] = []
+
+    def take(self) -> PlateImage:
+        for plate in self._plates:
+            # references: the pool's list, the loop variable and getrefcount's argument
+            if sys.getrefcount(plate) <= 3:
+                plate.clear()
+                return plate
+        plate = PlateImage.blank(self.shape)
+        if len(self._plates) < self.size:
+            self._plates.append(plate)
+        return plate
+
 
 def _coverage(result, settings, skel, tol) -> Iterator[np.ndarray]:
     if getattr(settings, "aa_exact", False):
@@ -298,14 +332,14 @@ def output_layers(result, settings, skel=None, tol: float = 1e-3) -> tuple[Slice
 
 
 def _plate_layers(result, pl, settings, skel=None, tol: float = 1e-3) -> Iterator[np.ndarray]:
-    shape = pl.printer.plate_shape
+    plates = PlatePool(pl.printer.plate_shape)
     src = _coverage(result, settings, skel, tol) if settings.antialiased else result.iter_layers()
     for k, img in enumerate(src):
         if k < pl.k_first:
             continue
         if k >= pl.k_first + pl.layers:
             break
-        canvas = PlateImage.blank(shape)
+        canvas = plates.take()
         if settings.antialiased:
             cov, (top, left) = box_filter(img, pl.aa, (pl.dj, pl.di))
             window = paste(canvas, grey_from_coverage(cov, settings.gamma), top, left)

@@ -263,3 +263,38 @@ def test_plate_layers_know_where_the_model_is(aa):
         assert occupied(img) == occupied(plain)
         seen += plain.any()
     assert seen > 5
+
+
+def test_plate_pool_reuses_only_plates_nobody_holds():
+    from slicer.antialias import PlatePool, paste
+
+    pool = PlatePool((6, 8), size=2)
+    a = pool.take()
+    a.window = paste(a, np.full((2, 3), 9, np.uint8), 1, 2)
+    view = a[1:3]                                  # a view keeps its plate busy
+    b = pool.take()
+    assert b is not a and not b.any()
+    del view
+    kept = a                                       # so does any other reference
+    c = pool.take()
+    assert c is not a and c is not b
+    del kept, a, b
+    d = pool.take()                                # released: cleared and handed out again
+    assert d.window == (0, 0, 0, 0) and not np.asarray(d).any()
+    e = pool.take()
+    assert e is not d and not e.any()
+
+
+def test_plate_layers_held_by_the_caller_stay_intact():
+    """A caller that keeps every layer gets distinct plates; one that streams gets
+    the same pixels from reused plates."""
+    from formats.printers import get_printer
+
+    s = Skeleton([[0, 0, 0], [3, 1, 2]], [[0, 1]], [[0.4, 0.6]])
+    prn = get_printer("prusa-sl1s")
+    res = slice_skeleton(s, prn.pixel_size[0], layer_height=0.05)
+    kept = list(render(res, PrintSettings(prn, 0.05))[1])
+    assert len({id(x) for x in kept}) == len(kept)
+    streamed = [np.asarray(x).copy() for x in render(res, PrintSettings(prn, 0.05))[1]]
+    assert all(np.array_equal(np.asarray(a), b) for a, b in zip(kept, streamed))
+    assert sum(b.any() for b in streamed) > 5
