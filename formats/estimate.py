@@ -228,7 +228,8 @@ class LayerMeter:
         if box is not None:
             r0, r1, c0, c1 = box
             band = image[r0:r1, c0:c1]                      # only the box that holds the model
-            self.grey_sum += int(band.sum(dtype=np.uint64))
+            # exact: a row of uint8 sums below 2**32 for rows under 16 M pixels
+            self.grey_sum += int(band.sum(axis=1, dtype=np.uint32).sum(dtype=np.uint64))
             solid = np.count_nonzero(band >= 128)
             self.slow_layers += bool(solid * 100.0 > AREA_FILL * image.size)
         self.layers += 1
