@@ -243,18 +243,18 @@ def test_force_never_overwrites_the_input(scene, tmp_path):
 # ----------------------------------------------------------------------------- disk full, unwritable
 def test_disk_full_mid_stack_is_a_clear_error_and_leaves_nothing(scene, tmp_path, monkeypatch):
     """ENOSPC raised by the image encoder at layer 5 (in-process, streamed plan)."""
-    from PIL import Image
+    import formats.png_stack
 
-    real = Image.Image.save
+    real = formats.png_stack.png_bytes
     calls = {"n": 0}
 
-    def full(self, fp, *a, **k):
+    def full(image, *a, **k):
         calls["n"] += 1
         if calls["n"] == 5:
             raise OSError(errno.ENOSPC, "No space left on device")
-        return real(self, fp, *a, **k)
+        return real(image, *a, **k)
 
-    monkeypatch.setattr(Image.Image, "save", full)
+    monkeypatch.setattr(formats.png_stack, "png_bytes", full)
     out = tmp_path / "stack"
     r = run("slice", scene, "-o", out, "--pixel-size", "0.05", "--slab", "10")
     assert_refused(r, "No space left on device", str(out))
