@@ -77,26 +77,14 @@ def stable_order(keys, passes):
 
 @kernel
 def run_events_by_layer(pix, k0, k1, layers, value):
-    """The set and clear events of inside runs, grouped by layer.
+    """The set and clear events of inside runs, grouped by layer: the kernel of
+    :func:`slicer.ordering.layer_events` (same arguments and results; the runs
+    must lie in ``[0, layers]``, which the wrapper checks).
 
     Each run ``[k0, k1)`` of pixel ``pix`` sets the pixel to ``value`` at layer
-    k0 and clears it at layer k1. Within a layer, the sets come first, then
-    the clears, each in run order: exactly the stable order of the events
-    ``concatenate([k0, k1])`` by layer, without sorting or gathering.
-
-    Parameters
-    ----------
-    pix, k0, k1 : (r,) int64
-        Runs; ``0 <= k0 < k1 <= layers``.
-    layers : int
-    value : uint8
-
-    Returns
-    -------
-    starts : (layers + 1,) int64
-        The events of layer k are ``[starts[k], starts[k + 1])``.
-    ev_pix : (2 r,) int64
-    ev_val : (2 r,) uint8
+    k0 and clears it at layer k1. Two counting passes place every event: the
+    sets of a layer first, then its clears, each in run order -- the stable
+    order of ``concatenate([k0, k1])`` by layer, without sorting or gathering.
     """
     n = pix.shape[0]
     pos = np.zeros(layers + 2, np.int64)
