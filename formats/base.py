@@ -270,7 +270,7 @@ def _png_chunk(kind: bytes, data: bytes) -> bytes:
     return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
 
-def png_bytes(image: np.ndarray, level: int = PNG_LEVEL) -> bytes:
+def png_bytes(image: np.ndarray, level: int = PNG_LEVEL, box=False) -> bytes:
     """An 8-bit PNG of a (h, w) greyscale or (h, w, 3) RGB uint8 image.
 
     Written directly (PNG 1.2): one IHDR (depth 8, colour type 0 or 2, no
@@ -285,6 +285,10 @@ def png_bytes(image: np.ndarray, level: int = PNG_LEVEL) -> bytes:
     image : (h, w) or (h, w, 3) uint8
     level : int
         zlib level, 0..9.
+    box : (r0, r1, c0, c1), None or False
+        Where the non-zero pixels are, if known (:func:`formats.rle.occupied`):
+        only that box of ``image`` is read (a transposed plate is then not
+        gathered whole). None: the image is all zero. False: read it all.
 
     Returns
     -------
@@ -305,9 +309,18 @@ def png_bytes(image: np.ndarray, level: int = PNG_LEVEL) -> bytes:
     h, w = image.shape[:2]
     if h == 0 or w == 0:
         raise FormatError(f"a PNG image needs at least one pixel, got {w} x {h}")
-    rows = np.empty((h, 1 + w * channels), np.uint8)
-    rows[:, 0] = 0                                     # filter type None on every row
-    rows[:, 1:] = image.reshape(h, w * channels)
+    if box is False:
+        rows = np.empty((h, 1 + w * channels), np.uint8)
+        rows[:, 0] = 0                                 # filter type None on every row
+        if channels == 1:
+            rows[:, 1:] = image                        # one strided copy, whatever the layout
+        else:
+            rows[:, 1:] = image.reshape(h, w * channels)
+    else:
+        rows = np.zeros((h, 1 + w * channels), np.uint8)   # filter type None; zero outside the box
+        if box is not None:
+            r0, r1, c0, c1 = box
+            rows[r0:r1, 1 + c0 * channels:1 + c1 * channels] = image[r0:r1, c0:c1].reshape(r1 - r0, -1)
     header = struct.pack(">IIBBBBB", w, h, 8, colour, 0, 0, 0)
     return b"".join((_PNG_SIGNATURE, _png_chunk(b"IHDR", header),
                      _png_chunk(b"IDAT", zlib.compress(rows.data, level)), _png_chunk(b"IEND", b"")))

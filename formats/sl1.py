@@ -92,7 +92,8 @@ class Sl1Writer(ZipArchiveWriter):
 
     def encode_layer(self, k: int, image: np.ndarray):
         """PNG bytes of the native image and the plate box of the model (thread-safe)."""
-        return png_bytes(self.printer.to_native(image)), occupied(image)
+        box = occupied(image)
+        return png_bytes(self.printer.to_native(image), box=self.printer.native_box(box)), box
 
     def write_layer(self, k: int, image: np.ndarray) -> None:
         self.store_layer(k, image, self.encode_layer(k, image))

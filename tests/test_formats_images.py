@@ -669,3 +669,21 @@ def test_layer_png_refuses_what_it_cannot_hold(bad):
 
     with pytest.raises(FormatError, match="PNG"):
         png_bytes(bad)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 40), st.integers(1, 40), st.booleans(), st.integers(0, 2**32 - 1))
+def test_a_layer_png_from_its_box_is_the_same_png(h, w, rgb, seed):
+    """Only the box that holds the model is read (transposed, flipped views too)."""
+    from formats.base import png_bytes
+    from formats.rle import occupied
+
+    rng = np.random.default_rng(seed)
+    img = np.zeros((h, w, 3) if rgb else (h, w), np.uint8)
+    r0, c0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+    img[r0:r0 + 4, c0:c0 + 6] = rng.integers(0, 256, img[r0:r0 + 4, c0:c0 + 6].shape)
+    views = [img, img[::-1, ::-1]] + ([] if rgb else [img.T])
+    for v in views:
+        box = occupied(v.any(axis=2) if rgb else v)
+        assert png_bytes(v, box=box) == png_bytes(v)
+    assert png_bytes(np.zeros_like(img), box=None) == png_bytes(np.zeros_like(img))
