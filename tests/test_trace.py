@@ -221,6 +221,38 @@ def test_long_strut_with_flat_field_along_the_ray_is_exact(spans):
     assert res.n_runs > 250
 
 
+def _bundle():
+    """Seven parallel vertical chains of short struts 0.25 mm apart, radius
+    0.2 mm, joints at random heights: one thick cable whose inside stretches
+    hold hundreds of breakpoints (t_in, t_out, t* of every strut)."""
+    rng = np.random.default_rng(1)
+    nodes, segs = [], []
+    for k in range(7):
+        ang = 2 * np.pi * k / 7
+        x, y = (0.25 * np.cos(ang), 0.25 * np.sin(ang)) if k else (0.0, 0.0)
+        zs = np.concatenate([[0.0], np.cumsum(rng.uniform(0.3, 0.8, 30))])
+        base = len(nodes)
+        nodes += [[x, y, z] for z in zs]
+        segs += [[base + i, base + i + 1] for i in range(len(zs) - 1)]
+    return _scene(nodes, segs, np.full((len(segs), 2), 0.2))
+
+
+@pytest.mark.parametrize("spans", [False, True])
+def test_inside_stretches_are_leapt_over_not_walked_breakpoint_by_breakpoint(spans):
+    """Inside the cable, the unimodal lower bound ``sum min(f(ta), f(tb))``
+    settles many breakpoints at a time (docs/math.md §5.6). Walking them one
+    piece at a time, with every active strut evaluated at each, costs about
+    3,500 evaluations per pixel column here (5,000 with spans); the leaps
+    cost about 1,300 (2,200). The voxels (and spans) stay exact."""
+    skel = _bundle()
+    grid = make_grid(skel.support_bounds(), 0.05, layer_height=0.05)
+    res, f = assert_exact(skel, grid, "interval", bucket=8, spans=spans)
+    columns = np.unique(res.pix).size
+    assert columns > 200 and (f >= 1).sum() > 50_000
+    per_column = res.stats["evaluations"] / columns
+    assert per_column < (3000 if spans else 2000), per_column
+
+
 def test_runs_stay_inside_a_grid_that_crops_the_model():
     """Explicit bounds cutting through the model: runs never reach past the
     last layer, and centres beyond the grid are not evaluated."""

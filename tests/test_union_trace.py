@@ -141,6 +141,45 @@ def test_random_scenes_match_the_dense_union(struts, px, h, spans, bucket):
     assert_union_exact(skel, grid, bucket=bucket, spans=spans)
 
 
+def test_struts_meeting_inside_leave_no_gap_between_their_spans():
+    """Strut 2's field falls through 1 where strut 3's rises through it, about
+    15 nm apart, with the union inside all along (found by the random scenes
+    above). Each strut's crossing is located to span_tol on its own, so the
+    two spans came out 1.8 nm apart and the union reported an end where
+    there is no crossing at all."""
+    struts = [((0.0, 0.0, 0.0), (0.0, 0.0, 1.5), 0.25, 0.5), ((0.0, 0.0, 0.0), (0.5, -1.0, 0.0), 0.5, 0.5),
+              ((1.8801482075701905, 0.0, 0.0), (0.0, 0.0, -1.408322834455154), 0.6675802167766487,
+               0.6568080872426902),
+              ((-0.8256233981628867, -0.9007436238425501, 0.323424172851587),
+               (-0.15234375, 1.8939477541342624, -0.9670933585688279), 0.7, 0.6917508839700575)]
+    nodes = np.array([p for a, b, _, _ in struts for p in (a, b)], float)
+    skel = Skeleton(nodes, [[2 * i, 2 * i + 1] for i in range(4)], [[r0, r1] for _, _, r0, r1 in struts])
+    grid = make_grid(skel.support_bounds(), 0.1, layer_height=0.05)
+    res, _ = assert_union_exact(skel, grid, bucket=0, spans=True)
+    pix = 30 * grid.width + 25
+    mine = [(a, b) for p, a, b in zip(res.span_pix, res.span_t0, res.span_t1) if p == pix]
+    assert len(mine) == 1 and mine[0][0] < -1.48 and mine[0][1] > 0.05, mine
+
+
+def test_span_merge_closes_only_centre_free_gaps_below_the_limit():
+    """``merge_spans``: overlapping spans join; a gap narrower than the limit
+    joins only when no voxel centre lies in it; wider gaps stay."""
+    from slicer._kernels.union_trace import merge_spans
+    z0, h = 0.0, 0.1
+    # spans (0.02, 0.151), (0.1512, 0.3): gap 2e-4 without a centre -> joined
+    xs = np.array([0.1512, 0.3, 0.02, 0.151])
+    assert merge_spans(xs, 4, 1e-3, z0, h) == 2 and tuple(xs[:2]) == (0.02, 0.3)
+    # the same gap around the centre 0.2 -> kept
+    xs = np.array([0.2001, 0.3, 0.02, 0.1999])
+    assert merge_spans(xs, 4, 1e-3, z0, h) == 4 and tuple(xs[:4]) == (0.02, 0.1999, 0.2001, 0.3)
+    # a centre exactly at a span's end belongs to the span, not to the gap
+    xs = np.array([0.02, 0.2, 0.2004, 0.3])
+    assert merge_spans(xs, 4, 1e-3, z0, h) == 2
+    # a centre-free gap as wide as the limit -> kept; overlap -> joined
+    xs = np.array([0.02, 0.151, 0.152, 0.17, 0.16, 0.18])
+    assert merge_spans(xs, 6, 1e-3, z0, h) == 4 and tuple(xs[:4]) == (0.02, 0.151, 0.152, 0.18)
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_union_of_one_strut_equals_sum(seed):
     rng = np.random.default_rng(seed)

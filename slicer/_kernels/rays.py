@@ -203,6 +203,112 @@ def eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2,
     return tot, nev
 
 
+#: inside leaps (:func:`leap_chain`): breakpoints tried ahead at first, and at most
+FIRST_LEAP = 4
+MAX_LEAP = 64
+
+
+@kernel
+def inside_leap(seg, hprim, hrec, sarr, ns, F, FP, cur, ray, tb, goal, kp, scratch, cache):
+    """Whether ``F >= 1`` holds on all of ``[ta, tb]`` along the ray, proven
+    from values (docs/math.md §5.6).
+
+    Each primitive is unimodal along the ray (§5.3), so on any interval its
+    minimum is at an end: ``F >= sum_s min(f_s(ta), f_s(tb))`` over any
+    subset of the primitives, whatever breakpoints lie between. Row ``cur``
+    of ``F`` holds lower bounds at ``ta``; only primitives positive there
+    whose support holds ``tb`` can add to the sum. They are evaluated at
+    ``tb``, largest bound at ``ta`` first, until the sum exceeds ``goal``
+    (1 plus the verdict pad) or cannot reach it. ``ray = (ox, oy, oz, dx,
+    dy, dz)``, ``kp = (m, 1/sigma^2, N)``; evaluations go to the hits'
+    caches ``cache = (ct, cf, cfp)`` exactly as :func:`eval_along` writes them.
+
+    Row 0 of ``F`` and ``FP`` is overwritten: on success, ``FP[0]`` holds
+    lower bounds at ``tb`` (the value where evaluated, else 0).
+
+    Returns
+    -------
+    proven : bool
+    nevals : int
+        Primitive evaluations performed.
+    """
+    ox, oy, oz, dx, dy, dz = ray
+    m, inv_s2, norm = kp
+    ct, cf, cfp = cache
+    rest = 0.0      # what the primitives not yet evaluated can still add
+    for s in range(ns):
+        r = sarr[s]
+        v = F[cur, s] if tb > hrec[r, H_TIN] and tb < hrec[r, H_TOUT] else 0.0
+        F[0, s] = v
+        FP[0, s] = 0.0
+        rest += v
+    lo = 0.0
+    nev = 0
+    while lo + rest > goal:
+        best = -1
+        fbest = 0.0
+        for s in range(ns):
+            if F[0, s] > fbest:
+                fbest = F[0, s]
+                best = s
+        if best < 0:
+            break
+        F[0, best] = 0.0
+        rest -= fbest
+        r = sarr[best]
+        if ct[r] == tb:
+            f = cf[r]
+        else:
+            f, gx, gy, gz = segment_eval(seg, hprim[r], ox + tb * dx, oy + tb * dy, oz + tb * dz, m, inv_s2, norm,
+                                         True, scratch)
+            ct[r] = tb
+            cf[r] = f
+            cfp[r] = gx * dx + gy * dy + gz * dz
+            nev += 1
+        FP[0, best] = f
+        lo += min(fbest, f)
+        if lo > goal:
+            return True, nev
+    return False, nev
+
+
+@kernel
+def leap_chain(seg, hprim, hrec, sarr, ns, F, FP, cur, ray, bps, j, nb, fcur, kp, scratch, cache):
+    """How far the ray is proven inside from breakpoint ``bps[j]``, where
+    row ``cur`` holds the exact values of the piece's primitives (their sum
+    ``fcur >= 1``), in leaps of :func:`inside_leap` from breakpoint to
+    breakpoint.
+
+    Each leap tries ``step`` breakpoints ahead (:data:`FIRST_LEAP` at
+    first), doubles the step after a success (up to :data:`MAX_LEAP`) and
+    halves it after a failure, and starts from the lower bounds the previous
+    leap left, so the breakpoints it lands on are not evaluated in full; the
+    chain ends when the step falls below 2. After a success, row ``cur``
+    holds those lower bounds; rows 0 of ``F`` and ``FP`` are overwritten.
+
+    Returns
+    -------
+    jj : int
+        The ray is inside on ``[bps[j], bps[jj]]`` (``jj = j``: no leap held).
+    nevals : int
+    """
+    goal = 1.0 + PAD * (1.0 + fcur)
+    jj = j
+    step = min(FIRST_LEAP, nb - 1 - j)
+    nev = 0
+    while step >= 2:
+        ok, ne = inside_leap(seg, hprim, hrec, sarr, ns, F, FP, cur, ray, bps[jj + step], goal, kp, scratch, cache)
+        nev += ne
+        if ok:
+            jj += step
+            for s in range(ns):
+                F[cur, s] = FP[0, s]
+            step = min(2 * step, MAX_LEAP, nb - 1 - jj)
+        else:
+            step //= 2
+    return jj, nev
+
+
 @kernel
 def piece_bounds(hrec, sarr, ns, F, FP, ia, ib, ta, tb, strict):
     """Interval ``[lo, hi]`` of the summed field of the active primitives on

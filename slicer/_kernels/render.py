@@ -49,8 +49,8 @@ from .._jit import kernel, parallel_kernel
 from .borrow import borrow, keep_alive
 from .field import segment_eval
 from .lazy import complete_row, lazy_ends
-from .rays import (PAD, eval_along, hermite_point, next_cluster, piece_bounds, piece_ends, piece_members,
-                   sort_hits, sort_unique, walk_buffers)
+from .rays import (PAD, eval_along, hermite_point, leap_chain, next_cluster, piece_bounds, piece_ends,
+                   piece_members, sort_hits, sort_unique, walk_buffers)
 from .raysupport import H_TIN, H_TOUT, H_TSTAR, ray_support
 
 OK = 0
@@ -333,7 +333,9 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
                 if not cut_support:
                     break
         nb = sort_unique(bps, nb)
-        for piece in range(nb - 1):
+        piece = -1
+        while piece < nb - 2:
+            piece += 1
             ta = bps[piece]
             tb = bps[piece + 1]
             ns, fmax = piece_members(hrec, order, a, b, ta, tb, sarr)
@@ -342,6 +344,15 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
             if strict or not lazy:
                 fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, ta, m, inv_s2, norm,
                                        scratch, st_f, st_fp, cur, ct, cf, cfp)
+                if not strict and fcur >= 1.0 and piece + 2 < nb:
+                    # inside at ta: no crossing as far as the unimodal lower bound reaches
+                    jj, ne = leap_chain(seg, hprim, hrec, sarr, ns, st_f, st_fp, cur, ray, bps, piece, nb, fcur, kp,
+                                        scratch, cache)
+                    counts[0] += ne
+                    if jj > piece:
+                        counts[0] += ne1
+                        piece = jj - 1
+                        continue
                 _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, tb, m, inv_s2, norm,
                                     scratch, st_f, st_fp, 0, ct, cf, cfp)
             else:

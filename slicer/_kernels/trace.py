@@ -32,8 +32,8 @@ from .._jit import kernel, parallel_kernel
 from .borrow import borrow, keep_alive
 from .field import segment_eval
 from .lazy import lazy_ends, settle, split_lazy
-from .rays import (PAD, eval_along, first_centre, hermite_point, next_cluster, piece_bounds_iv, piece_ends,
-                   piece_members, sort_hits, sort_unique, walk_buffers)
+from .rays import (PAD, eval_along, first_centre, hermite_point, leap_chain, next_cluster, piece_bounds_iv,
+                   piece_ends, piece_members, sort_hits, sort_unique, walk_buffers)
 from .raysupport import H_TIN, H_TOUT, H_TSTAR, lipschitz, ray_support
 
 OK = 0
@@ -150,6 +150,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     nev = 0
     nx = 0
     inside = False      # spans: the class of the last point whose value is known
+    leaps = not strict and not lazy
     a = 0
     while a < nh:
         b, cs, ce = next_cluster(hrec, order, a, nh)
@@ -180,7 +181,9 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     nb += 1
             nb = sort_unique(bps, nb)
             tlast = cs
-            for j in range(nb - 1):
+            j = -1
+            while j < nb - 2:
+                j += 1
                 ta = bps[j]
                 tb = bps[j + 1]
                 k0 = first_centre(ta, z0, h, K)
@@ -202,9 +205,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                 else:
                     fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ta, m,
                                            inv_s2, norm, scratch, st_f, st_fp, cur, ct, cf, cfp)
-                    _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, tb, m, inv_s2,
-                                        norm, scratch, st_f, st_fp, 0, ct, cf, cfp)
-                    nev += ne1 + ne2
+                    nev += ne1
                 if spans and (fcur >= 1.0) != inside:
                     # only after a skipped stretch (below the grid): enter here
                     if nx >= xcap:
@@ -212,6 +213,23 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     cz[nx] = ta
                     nx += 1
                     inside = not inside
+                if leaps and fcur >= 1.0 and j + 2 < nb:
+                    # inside at ta: settle as many breakpoints ahead as the
+                    # unimodal lower bound proves inside at once
+                    jj, ne1 = leap_chain(seg, hprim, hrec, sarr, ns, st_f, st_fp, cur, ray, bps, j, nb, fcur, kp,
+                                         scratch, cache)
+                    nev += ne1
+                    if jj > j:
+                        nrun = _emit(k0, first_centre(bps[jj], z0, h, K) - 1, True, rk0, rk1, nrun, cap)
+                        if nrun < 0:
+                            return -1, nev, nx
+                        tlast = bps[jj]
+                        j = jj - 1
+                        continue
+                if not lazy:
+                    _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, tb, m, inv_s2,
+                                        norm, scratch, st_f, st_fp, 0, ct, cf, cfp)
+                    nev += ne2
                 tcur = ta
                 sp = 1
                 st_kind[0] = 0

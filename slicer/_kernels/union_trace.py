@@ -145,7 +145,7 @@ def add_crossing(xs, cnt, t):
     the complete spans already there)."""
     n = cnt[C_X]
     if n >= xs.shape[0]:
-        n = merge_spans(xs, n - (n % 2)) + (n % 2)
+        n = merge_spans(xs, n - (n % 2), 0.0, 0.0, 1.0) + (n % 2)
         if n % 2:
             xs[n - 1] = xs[cnt[C_X] - 1]
         cnt[C_X] = n
@@ -182,9 +182,18 @@ def merge_runs(runs, n):
 
 
 @kernel
-def merge_spans(xs, n):
+def merge_spans(xs, n, gap, z0, h):
     """Sort the spans ``(xs[2i], xs[2i+1])`` of ``xs[:n]`` by start and join
-    those that overlap or touch; returns the new count of heights."""
+    those that overlap or touch, and those less than ``gap`` (mm) apart with
+    no voxel centre ``z0 + k h`` between them; returns the new count of
+    heights.
+
+    Two struts' spans that meet (one ends where the other starts) are
+    located independently, each end to ``span_tol``: they may come out
+    apart by up to ``2 span_tol`` where the union is inside all along. A
+    centre between them is outside both (each strut's spans hold exactly
+    its inside centres), so such a gap is never closed.
+    """
     ns = n // 2
     for a in range(1, ns):
         s0 = xs[2 * a]
@@ -198,13 +207,27 @@ def merge_spans(xs, n):
         xs[2 * b + 3] = s1
     w = 0
     for a in range(ns):
-        if w > 0 and xs[2 * a] <= xs[2 * w - 1]:
+        if w > 0 and (xs[2 * a] <= xs[2 * w - 1] or _closable(xs[2 * w - 1], xs[2 * a], gap, z0, h)):
             xs[2 * w - 1] = max(xs[2 * w - 1], xs[2 * a + 1])
         else:
             xs[2 * w] = xs[2 * a]
             xs[2 * w + 1] = xs[2 * a + 1]
             w += 1
     return 2 * w
+
+
+@kernel
+def _closable(end, start, gap, z0, h):
+    """Whether the gap ``(end, start)`` between two spans is narrower than
+    ``gap`` and holds no voxel centre ``z0 + k h``."""
+    if not start - end < gap:
+        return False
+    k = math.ceil((end - z0) / h)
+    while z0 + (k - 1) * h > end:
+        k -= 1
+    while z0 + k * h <= end:
+        k += 1
+    return not z0 + k * h < start
 
 
 @kernel
@@ -436,7 +459,7 @@ def union_ray(seg, boxes, ids, i0, i1, fp, ip, kp, bufs, runs, xs, cnt):
             return False
     cnt[C_RUN] = merge_runs(runs, cnt[C_RUN])
     if spans:
-        cnt[C_X] = merge_spans(xs, cnt[C_X])
+        cnt[C_X] = merge_spans(xs, cnt[C_X], 2.0 * fp[4], fp[0], fp[1])
     return True
 
 
