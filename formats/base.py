@@ -5,6 +5,7 @@ Atomic publication is :mod:`slicer.atomic` (one implementation for every output)
 from __future__ import annotations
 
 import collections
+import functools
 import os
 import struct
 import zlib
@@ -288,7 +289,9 @@ def png_bytes(image: np.ndarray, level: int = PNG_LEVEL, box=False) -> bytes:
     box : (r0, r1, c0, c1), None or False
         Where the non-zero pixels are, if known (:func:`formats.rle.occupied`):
         only that box of ``image`` is read (a transposed plate is then not
-        gathered whole). None: the image is all zero. False: read it all.
+        gathered whole), and the zero rows around it are not deflated again
+        (:func:`png_bytes_sparse`). None: the image is all zero. False: read
+        and deflate it all.
 
     Returns
     -------
@@ -309,21 +312,134 @@ def png_bytes(image: np.ndarray, level: int = PNG_LEVEL, box=False) -> bytes:
     h, w = image.shape[:2]
     if h == 0 or w == 0:
         raise FormatError(f"a PNG image needs at least one pixel, got {w} x {h}")
-    if box is False:
-        rows = np.empty((h, 1 + w * channels), np.uint8)
-        rows[:, 0] = 0                                 # filter type None on every row
-        if channels == 1:
-            rows[:, 1:] = image                        # one strided copy, whatever the layout
-        else:
-            rows[:, 1:] = image.reshape(h, w * channels)
+    if box is not False:
+        if box is None:
+            return png_bytes_sparse(h, w, np.zeros((0, 0) + image.shape[2:], np.uint8), (0, 0), level)
+        r0, r1, c0, c1 = box
+        return png_bytes_sparse(h, w, image[r0:r1, c0:c1], (r0, c0), level)
+    rows = np.empty((h, 1 + w * channels), np.uint8)
+    rows[:, 0] = 0                                 # filter type None on every row
+    if channels == 1:
+        rows[:, 1:] = image                        # one strided copy, whatever the layout
     else:
-        rows = np.zeros((h, 1 + w * channels), np.uint8)   # filter type None; zero outside the box
-        if box is not None:
-            r0, r1, c0, c1 = box
-            rows[r0:r1, 1 + c0 * channels:1 + c1 * channels] = image[r0:r1, c0:c1].reshape(r1 - r0, -1)
+        rows[:, 1:] = image.reshape(h, w * channels)
+    return _png_file(w, h, colour, zlib.compress(rows.data, level))
+
+
+def png_bytes_sparse(height: int, width: int, block: np.ndarray, at: tuple[int, int],
+                     level: int = PNG_LEVEL) -> bytes:
+    """An 8-bit PNG of a ``height`` x ``width`` image that is zero except for
+    ``block``, whose top-left pixel is at row and column ``at``.
+
+    The image is never built whole. Its rows above and below the block are
+    all zero bytes (filter type None, zero pixels); they are deflated as
+    runs of cached pieces (each a power of two bytes long and ended by a
+    full flush, so pieces join anywhere), and the zlib checksum of a zero
+    run is computed, not summed. Only the rows of the block are deflated.
+    The pixels are those of :func:`png_bytes` on the whole image; the
+    deflate stream is another one (a few hundred bytes longer at most).
+
+    Parameters
+    ----------
+    height, width : int, pixels
+    block : (bh, bw) or (bh, bw, 3) uint8
+        Greyscale or RGB; the PNG's colour type follows it.
+    at : (row, col)
+        Where ``block[0, 0]`` lies; the block must fit inside the image.
+    level : int
+        zlib level, 0..9.
+
+    Returns
+    -------
+    bytes
+
+    Raises
+    ------
+    FormatError
+        An empty image, a block that is not greyscale or RGB, or one that does
+        not fit.
+    """
+    block = np.asarray(block)
+    if block.ndim == 2:
+        colour, channels = 0, 1
+    elif block.ndim == 3 and block.shape[2] == 3:
+        colour, channels = 2, 3
+    else:
+        raise FormatError(f"PNG layers are (h, w) greyscale or (h, w, 3) RGB images, not a block of shape "
+                          f"{block.shape}")
+    if height <= 0 or width <= 0:
+        raise FormatError(f"a PNG image needs at least one pixel, got {width} x {height}")
+    bh, bw = block.shape[:2]
+    r0, c0 = (int(v) for v in at)
+    if bh == 0 or bw == 0:
+        bh = bw = r0 = c0 = 0
+    elif not (0 <= r0 and r0 + bh <= height and 0 <= c0 and c0 + bw <= width):
+        raise FormatError(f"a {bw} x {bh} px block at row {r0}, column {c0} does not fit a {width} x {height} "
+                          f"px PNG")
+    rowlen = 1 + width * channels
+    band = np.zeros((bh, rowlen), np.uint8)       # filter type None; zero outside the block
+    if bh:
+        band[:, 1 + c0 * channels:1 + (c0 + bw) * channels] = block.reshape(bh, bw * channels)
+    above = r0 * rowlen
+    below = (height - r0 - bh) * rowlen
+    adler = _adler32_zeros(1, above)
+    adler = zlib.adler32(band.data, adler)
+    adler = _adler32_zeros(adler, below)
+    stream = b"".join((_zlib_header(level), _deflated_zeros(above, level), _deflated(band.data, level),
+                       _deflated_zeros(below, level), _FINAL_EMPTY_BLOCK, struct.pack(">I", adler)))
+    return _png_file(width, height, colour, stream)
+
+
+def _png_file(w: int, h: int, colour: int, idat: bytes) -> bytes:
     header = struct.pack(">IIBBBBB", w, h, 8, colour, 0, 0, 0)
-    return b"".join((_PNG_SIGNATURE, _png_chunk(b"IHDR", header),
-                     _png_chunk(b"IDAT", zlib.compress(rows.data, level)), _png_chunk(b"IEND", b"")))
+    return b"".join((_PNG_SIGNATURE, _png_chunk(b"IHDR", header), _png_chunk(b"IDAT", idat),
+                     _png_chunk(b"IEND", b"")))
+
+
+#: a raw deflate block that ends a stream: final, fixed codes, nothing but end-of-block
+_FINAL_EMPTY_BLOCK = b"\x03\x00"
+#: zero runs are deflated in cached pieces of 2^k bytes, k >= this
+_ZERO_PIECE_BITS = 12
+
+
+@functools.lru_cache(maxsize=None)
+def _zlib_header(level: int) -> bytes:
+    """The two header bytes zlib writes at this level."""
+    return zlib.compress(b"", level)[:2]
+
+
+def _deflated(data, level: int) -> bytes:
+    """Raw deflate blocks of ``data``, ended by a full flush: byte-aligned,
+    referring to nothing before them, not final."""
+    c = zlib.compressobj(level, zlib.DEFLATED, -15)
+    return c.compress(data) + c.flush(zlib.Z_FULL_FLUSH)
+
+
+@functools.lru_cache(maxsize=None)
+def _deflated_zero_piece(n: int, level: int) -> bytes:
+    return _deflated(bytes(n), level)
+
+
+def _deflated_zeros(n: int, level: int) -> bytes:
+    """Raw deflate blocks of ``n`` zero bytes (see :func:`_deflated`)."""
+    parts = []
+    bit = n.bit_length() - 1
+    while bit >= _ZERO_PIECE_BITS:
+        if n >= 1 << bit:
+            parts.append(_deflated_zero_piece(1 << bit, level))
+            n -= 1 << bit
+        bit -= 1
+    if n:
+        parts.append(_deflated(bytes(n), level))
+    return b"".join(parts)
+
+
+def _adler32_zeros(adler: int, n: int) -> int:
+    """zlib's Adler-32 of ``n`` zero bytes appended to data whose checksum is ``adler``:
+    the low sum does not change and the high one grows by ``n`` times it."""
+    a = adler & 0xFFFF
+    b = adler >> 16
+    return (((b + n * a) % 65521) << 16) | a
 
 
 def build_time():
@@ -347,5 +463,5 @@ def zip_entry(name: str, compress: bool):
     return info
 
 
-__all__ = ["StackWriter", "BinaryStackWriter", "fixed_string", "png_bytes", "write_ordered", "encode_workers", "build_time", "zip_entry",
+__all__ = ["StackWriter", "BinaryStackWriter", "fixed_string", "png_bytes", "png_bytes_sparse", "write_ordered", "encode_workers", "build_time", "zip_entry",
            "check_destination", "AtomicFile", "AtomicDir"]

@@ -50,7 +50,7 @@ import numpy as np
 from slicer._kernels.islands import island_sizes as _island_sizes
 from slicer.errors import OutputError
 
-from .base import build_time, png_bytes
+from .base import build_time, png_bytes_sparse
 from .estimate import LayerMeter
 from .printers import PrintSettings
 from .rle import occupied
@@ -81,7 +81,7 @@ def island_sizes(image: np.ndarray) -> np.ndarray:
     return _island_sizes(np.ascontiguousarray(img != 0, dtype=np.uint8))
 
 
-def layer_info(image: np.ndarray, pitch: tuple[float, float]) -> dict:
+def layer_info(image: np.ndarray, pitch: tuple[float, float], box=False) -> dict:
     """The ``info.json`` entry of one stored layer.
 
     Parameters
@@ -90,6 +90,9 @@ def layer_info(image: np.ndarray, pitch: tuple[float, float]) -> dict:
         The layer as stored (display pixels).
     pitch : (2,) float, mm
         Pixel pitch along the image's columns and rows.
+    box : (r0, r1, c0, c1), None or False
+        Where the non-zero pixels are, if known (:func:`formats.rle.occupied`):
+        only that box is read. None: the layer is empty. False: read it all.
 
     Returns
     -------
@@ -98,6 +101,12 @@ def layer_info(image: np.ndarray, pitch: tuple[float, float]) -> dict:
         ``MinX``, ``MinY``, ``MaxX``, ``MaxY`` (pixels, max exclusive) and
         ``AreaCount``; zeros for an empty layer.
     """
+    R0, C0 = 0, 0
+    if box is None:
+        image = image[:0, :0]
+    elif box is not False:
+        R0, R1, C0, C1 = box
+        image = image[R0:R1, C0:C1]
     rows = np.flatnonzero(image.any(axis=1))
     if rows.size == 0:
         return {"TotalSolidArea": 0.0, "LargestArea": 0.0, "SmallestArea": 0.0,
@@ -109,8 +118,8 @@ def layer_info(image: np.ndarray, pitch: tuple[float, float]) -> dict:
     sizes = island_sizes(band[:, c0:c1])
     a = float(pitch[0]) * float(pitch[1])
     return {"TotalSolidArea": float(sizes.sum()) * a, "LargestArea": float(sizes.max()) * a,
-            "SmallestArea": float(sizes.min()) * a, "MinX": c0, "MinY": r0, "MaxX": c1, "MaxY": r1,
-            "AreaCount": int(sizes.size)}
+            "SmallestArea": float(sizes.min()) * a, "MinX": C0 + c0, "MinY": R0 + r0, "MaxX": C0 + c1,
+            "MaxY": R0 + r1, "AreaCount": int(sizes.size)}
 
 
 def pack_rgb(image: np.ndarray) -> np.ndarray:
@@ -197,9 +206,34 @@ class NanoDlpWriter(ZipArchiveWriter):
 
     def encode_layer(self, k: int, image: np.ndarray):
         """(PNG bytes of the packed display image, the layer's info record, the
-        image's :func:`formats.rle.occupied` box)."""
-        disp = np.ascontiguousarray(self.native(np.asarray(image, dtype=np.uint8)))
-        return png_bytes(pack_rgb(disp)), layer_info(disp, self.pitch), occupied(image)
+        image's :func:`formats.rle.occupied` box).
+
+        Only the box of the display image that holds the model is read
+        (a transposed or mirrored view of the plate is not gathered whole);
+        the zero rows around it are not deflated again
+        (:func:`formats.base.png_bytes_sparse`).
+        """
+        box = occupied(image)
+        image = np.asarray(image, dtype=np.uint8)
+        if self.printer is not None:
+            view, vbox = self.printer.to_native(image), self.printer.native_box(box)
+        else:
+            if image.shape != (self.grid.height, self.grid.width):
+                raise OutputError(f"layer image must be {(self.grid.height, self.grid.width)}, got {image.shape}")
+            view, vbox = image, box         # the padding columns on the right are zero
+        return self._packed_png(view, vbox), layer_info(view, self.pitch, box=vbox), box
+
+    def _packed_png(self, view: np.ndarray, box) -> bytes:
+        """PNG of the display image (:func:`pack_rgb`: 3 display pixels per RGB
+        pixel) from the box of ``view`` that holds its non-zero pixels."""
+        cols, rows = self.display
+        if box is None:
+            return png_bytes_sparse(rows, cols // 3, np.zeros((0, 0, 3), np.uint8), (0, 0))
+        r0, r1, c0, c1 = box
+        p0, p1 = c0 // 3, -(-c1 // 3)        # the RGB pixels holding display columns c0..c1-1
+        block = np.zeros((r1 - r0, 3 * (p1 - p0)), np.uint8)
+        block[:, c0 - 3 * p0:c1 - 3 * p0] = view[r0:r1, c0:c1]
+        return png_bytes_sparse(rows, cols // 3, pack_rgb(block), (r0, p0))
 
     def write_layer(self, k: int, image: np.ndarray) -> None:
         self.store_layer(k, image, self.encode_layer(k, image))

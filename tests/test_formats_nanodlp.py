@@ -153,6 +153,24 @@ def test_layer_info_of_a_known_image():
 
 
 @settings(max_examples=50, deadline=None)
+@given(st.integers(1, 30), st.integers(1, 30), st.integers(0, 2**32 - 1), st.booleans())
+def test_layer_info_from_a_box_equals_the_full_scan(h, w, seed, loose):
+    """With the box of its pixels (tight, or any box holding them), the info
+    record is that of the whole image; with None, that of an empty one."""
+    from formats.rle import occupied
+
+    rng = np.random.default_rng(seed)
+    img = np.zeros((h, w), np.uint8)
+    r0, c0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+    img[r0:r0 + 5, c0:c0 + 4] = np.where(rng.random(img[r0:r0 + 5, c0:c0 + 4].shape) < 0.6, 255, 0)
+    box = occupied(img)
+    if box is not None and loose:
+        box = (max(box[0] - 2, 0), min(box[1] + 1, h), max(box[2] - 1, 0), min(box[3] + 3, w))
+    assert layer_info(img, (0.05, 0.1), box=box) == layer_info(img, (0.05, 0.1))
+    assert layer_info(img, (0.05, 0.1), box=None)["AreaCount"] == 0
+
+
+@settings(max_examples=50, deadline=None)
 @given(st.integers(1, 9), st.integers(1, 7), st.integers(0, 2**32 - 1))
 def test_pack_rgb_round_trip(h, w3, seed):
     img = np.random.default_rng(seed).integers(0, 256, (h, 3 * w3)).astype(np.uint8)
