@@ -734,6 +734,40 @@ def test_sparse_png_rows_of_zeros_are_spliced_in_correctly(h, w, bh, bw, rgb, se
             png_bytes_sparse(h, w, block, (r0, -1))
 
 
+def test_each_layer_png_takes_the_smaller_deflate_strategy():
+    """A sparse plate row (a short part in a long empty row) deflates several
+    times smaller with runs; a dense lattice, whose rows repeat rows above
+    it, smaller with zlib's default search. Each layer gets the better one
+    (sampled on its middle rows), and both decode to the image."""
+    import zlib
+
+    from formats.base import PNG_LEVEL, _strategy, png_bytes
+
+    rng = np.random.default_rng(3)
+    sparse = np.zeros((400, 6000), np.uint8)
+    for r in range(150, 250):
+        c = 2900 + int(rng.integers(0, 40))
+        sparse[r, c:c + 60 + int(rng.integers(0, 40))] = 255
+    cell = (rng.random((7, 43)) < 0.4).astype(np.uint8) * 255
+    dense = np.tile(cell, (60, 100))
+    sizes = {}
+    for name, img in (("sparse", sparse), ("dense", dense)):
+        rows = np.zeros((img.shape[0], 1 + img.shape[1]), np.uint8)
+        rows[:, 1:] = img
+        sizes[name] = {}
+        for strategy in (zlib.Z_RLE, zlib.Z_DEFAULT_STRATEGY):
+            c = zlib.compressobj(PNG_LEVEL, zlib.DEFLATED, 15, 8, strategy)
+            sizes[name][strategy] = len(c.compress(rows.data) + c.flush())
+        data = png_bytes(img)
+        assert np.array_equal(_decoded_png(data), img)
+        assert len(data) < 1.1 * min(sizes[name].values()) + 100
+        sizes[name]["chosen"] = _strategy(rows, PNG_LEVEL)
+    assert sizes["sparse"][zlib.Z_RLE] * 2 < sizes["sparse"][zlib.Z_DEFAULT_STRATEGY]
+    assert sizes["sparse"]["chosen"] == zlib.Z_RLE
+    assert sizes["dense"][zlib.Z_DEFAULT_STRATEGY] * 2 < sizes["dense"][zlib.Z_RLE]
+    assert sizes["dense"]["chosen"] == zlib.Z_DEFAULT_STRATEGY
+
+
 @settings(max_examples=60, deadline=None)
 @given(st.binary(max_size=300), st.integers(0, 200_000))
 def test_adler32_of_appended_zeros_matches_zlib(data, n):
