@@ -303,12 +303,7 @@ def png_bytes(image: np.ndarray, level: int = PNG_LEVEL, box=False) -> bytes:
         Not a 2-D or (h, w, 3) image, or an empty one.
     """
     image = np.asarray(image)
-    if image.ndim == 2:
-        colour, channels = 0, 1
-    elif image.ndim == 3 and image.shape[2] == 3:
-        colour, channels = 2, 3
-    else:
-        raise FormatError(f"PNG layers are (h, w) greyscale or (h, w, 3) RGB images, not shape {image.shape}")
+    colour, channels = _png_colour(image.shape, "")
     h, w = image.shape[:2]
     if h == 0 or w == 0:
         raise FormatError(f"a PNG image needs at least one pixel, got {w} x {h}")
@@ -361,13 +356,7 @@ def png_bytes_sparse(height: int, width: int, block: np.ndarray, at: tuple[int, 
         not fit.
     """
     block = np.asarray(block)
-    if block.ndim == 2:
-        colour, channels = 0, 1
-    elif block.ndim == 3 and block.shape[2] == 3:
-        colour, channels = 2, 3
-    else:
-        raise FormatError(f"PNG layers are (h, w) greyscale or (h, w, 3) RGB images, not a block of shape "
-                          f"{block.shape}")
+    colour, channels = _png_colour(block.shape, "a block of ")
     if height <= 0 or width <= 0:
         raise FormatError(f"a PNG image needs at least one pixel, got {width} x {height}")
     bh, bw = block.shape[:2]
@@ -390,6 +379,15 @@ def png_bytes_sparse(height: int, width: int, block: np.ndarray, at: tuple[int, 
                        _deflated(band.data, level, _strategy(band, level)),
                        _deflated_zeros(below, level), _FINAL_EMPTY_BLOCK, struct.pack(">I", adler)))
     return _png_file(width, height, colour, stream)
+
+
+def _png_colour(shape: tuple, what: str) -> tuple[int, int]:
+    """PNG colour type and channels of a (h, w) grey or (h, w, 3) RGB array."""
+    if len(shape) == 2:
+        return 0, 1
+    if len(shape) == 3 and shape[2] == 3:
+        return 2, 3
+    raise FormatError(f"PNG layers are (h, w) greyscale or (h, w, 3) RGB images, not {what}shape {shape}")
 
 
 def _png_file(w: int, h: int, colour: int, idat: bytes) -> bytes:
