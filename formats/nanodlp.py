@@ -188,19 +188,15 @@ class NanoDlpWriter(ZipArchiveWriter):
         self._info: list[dict] = []
         self._meter = LayerMeter()
 
-    def native(self, image: np.ndarray) -> np.ndarray:
-        """The display image of a layer: the printer's native layout, or the
-        grid's image padded on the right to a width that is a multiple of 3."""
+    def _display_view(self, image: np.ndarray, box):
+        """The layer as the display shows it, and where its pixels are there:
+        the printer's native view and box, or the grid's image itself (the
+        padding columns on the right of the display are zero)."""
         if self.printer is not None:
-            return self.printer.to_native(image)
-        cols, rows = self.display
+            return self.printer.to_native(image), self.printer.native_box(box)
         if image.shape != (self.grid.height, self.grid.width):
             raise OutputError(f"layer image must be {(self.grid.height, self.grid.width)}, got {image.shape}")
-        if cols == image.shape[1]:
-            return image
-        out = np.zeros((rows, cols), np.uint8)
-        out[:, :image.shape[1]] = image
-        return out
+        return image, box
 
     parallel_encode = True
 
@@ -214,13 +210,7 @@ class NanoDlpWriter(ZipArchiveWriter):
         (:func:`formats.base.png_bytes_sparse`).
         """
         box = occupied(image)
-        image = np.asarray(image, dtype=np.uint8)
-        if self.printer is not None:
-            view, vbox = self.printer.to_native(image), self.printer.native_box(box)
-        else:
-            if image.shape != (self.grid.height, self.grid.width):
-                raise OutputError(f"layer image must be {(self.grid.height, self.grid.width)}, got {image.shape}")
-            view, vbox = image, box         # the padding columns on the right are zero
+        view, vbox = self._display_view(np.asarray(image, dtype=np.uint8), box)
         return self._packed_png(view, vbox), layer_info(view, self.pitch, box=vbox), box
 
     def _packed_png(self, view: np.ndarray, box) -> bytes:
