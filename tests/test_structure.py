@@ -222,3 +222,68 @@ def test_one_place_for_sees_uses():
     assert _matches("numba.set_num_threads", "set_num_threads")
     assert _matches("os.replace", "os.replace") and not _matches("s.replace", "os.replace")
     assert not _matches("numbagg", "numba")
+
+
+
+#: the size a compiled kernel function may reach: kernels are plain loops made
+#: of small named helpers
+KERNEL_MAX_LINES = 80
+KERNEL_MAX_PARAMS = 15
+#: the ray walks and their launchers, still over the limits (lines, parameters):
+#: each may shrink but not grow, and leaves this list once it fits. Their
+#: arrays are passed one by one on purpose: bundled into one structure, every
+#: helper call reference-counts each array of it, and the walk measured
+#: 1.5-2.5x slower (docs/development.md, "Why the walk's arrays travel loose")
+KERNEL_OVERSIZED = {
+    "lazy.py:settle": (29, 16), "rays.py:eval_along": (43, 22), "rays.py:leap_chain": (34, 16),
+    "render.py:refine_root": (69, 22), "render.py:render_ray": (181, 38), "render.py:render_buckets": (75, 27),
+    "trace.py:_ray_hits": (16, 16), "trace.py:trace_ray_interval": (248, 41),
+    "trace.py:trace_ray_sampling": (36, 18), "trace.py:trace_ray_segment": (57, 21),
+    "trace.py:trace_buckets": (112, 35), "union_trace.py:trace_union_buckets": (68, 34),
+}
+
+
+def _function_sizes(tree: ast.AST, where: str) -> dict[str, tuple[int, int]]:
+    return {f"{where}:{node.name}": (node.end_lineno - node.lineno + 1,
+                                     len(node.args.args) + len(node.args.kwonlyargs))
+            for node in ast.walk(tree) if isinstance(node, ast.FunctionDef)}
+
+
+def _oversized(sizes: dict[str, tuple[int, int]], allowed: dict[str, tuple[int, int]]) -> list[str]:
+    """Functions over the limits beyond what ``allowed`` grants them, and
+    entries of ``allowed`` that now fit (or are gone)."""
+    bad = []
+    for name, (lines, params) in sizes.items():
+        lim = allowed.get(name, (KERNEL_MAX_LINES, KERNEL_MAX_PARAMS))
+        lim = (max(lim[0], KERNEL_MAX_LINES), max(lim[1], KERNEL_MAX_PARAMS))
+        if lines > lim[0] or params > lim[1]:
+            bad.append(f"{name}: {lines} lines, {params} parameters")
+    for name in allowed:
+        lines, params = sizes.get(name, (0, 0))
+        if lines <= KERNEL_MAX_LINES and params <= KERNEL_MAX_PARAMS:
+            bad.append(f"{name}: fits now; drop it from KERNEL_OVERSIZED")
+    return bad
+
+
+def test_kernel_functions_stay_small():
+    """No function in ``slicer/_kernels/`` is over KERNEL_MAX_LINES lines
+    (docstring included) or takes over KERNEL_MAX_PARAMS parameters, except
+    the listed ray walks, which may not grow."""
+    files = sorted((ROOT / "slicer" / "_kernels").glob("*.py"))
+    assert len(files) > 10
+    sizes = {}
+    for f in files:
+        sizes.update(_function_sizes(ast.parse(f.read_text()), f.name))
+    assert _oversized(sizes, KERNEL_OVERSIZED) == []
+
+
+def test_kernel_size_check_sees_long_wide_grown_and_stale():
+    """Guard the check: a long function, a wide one, a listed one that grew
+    and a listed one that fits are all reported; a small one is not."""
+    long_body = "def f(a):\n" + "    a += 1\n" * KERNEL_MAX_LINES
+    wide = "def g(" + ", ".join(f"p{i}" for i in range(KERNEL_MAX_PARAMS + 1)) + "):\n    pass\n"
+    sizes = _function_sizes(ast.parse(long_body + wide + "def h(a, b):\n    return a\n"), "x.py")
+    assert len(_oversized(sizes, {})) == 2
+    assert _oversized({"x.py:f": (100, 3)}, {"x.py:f": (100, 3)}) == []
+    assert len(_oversized({"x.py:f": (101, 3)}, {"x.py:f": (100, 3)})) == 1
+    assert len(_oversized({"x.py:f": (60, 3)}, {"x.py:f": (100, 3)})) == 1

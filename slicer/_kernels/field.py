@@ -33,6 +33,129 @@ AX, AY, AZ, UX, UY, UZ, LEN, TAU0, DELTA, TAU1 = range(10)
 NCOL = 10
 
 
+@inline_kernel
+def _axial_split(seg, i, px, py, pz):
+    """p - a of segment ``i`` split along and across its unit axis u.
+
+    Returns
+    -------
+    wu : float
+        (p - a).u, the foot's arc length from a (mm; any sign, may exceed L).
+    qx, qy, qz, perp2 : float
+        The component of p - a perpendicular to the axis (mm), its square norm.
+    """
+    wx = px - seg[i, AX]
+    wy = py - seg[i, AY]
+    wz = pz - seg[i, AZ]
+    ux = seg[i, UX]
+    uy = seg[i, UY]
+    uz = seg[i, UZ]
+    wu = wx * ux + wy * uy + wz * uz
+    qx = wx - wu * ux
+    qy = wy - wu * uy
+    qz = wz - wu * uz
+    perp2 = qx * qx + qy * qy + qz * qz
+    return wu, qx, qy, qz, perp2
+
+
+@inline_kernel
+def _local_origin(wu, L):
+    """Local origin of the support polynomial for the foot at arc length ``wu``.
+
+    Returns
+    -------
+    to : float
+        The foot itself when it lies on the segment (0 < wu < L), else the
+        end beyond which it lies (0 or L).
+    e : float
+        wu - to: 0 for a foot on the segment, the signed overshoot otherwise.
+    """
+    if wu <= 0.0:
+        return 0.0, wu
+    if wu >= L:
+        return L, wu - L
+    return wu, 0.0
+
+
+@inline_kernel
+def _clip_cone(c2, h, c0, disc, lo, hi):
+    """Clip [lo, hi] to where P = c2 t'^2 + 2 h t' + c0 > 0 for c2 < 0 (the
+    usual case: P > 0 between its roots), with the stable root pair ``q / c2``,
+    ``c0 / q`` (docs/math.md §2.2). ``disc`` = h^2 - c2 c0.
+
+    Returns
+    -------
+    lo, hi : float
+        The clipped interval (0, -1 when empty).
+    root_a, root_b : bool
+        Whether lo (hi) is a root of P rather than the clip passed in.
+    """
+    if disc <= 0.0:
+        return 0.0, -1.0, False, False
+    sq = math.sqrt(disc)
+    q = -(h + sq) if h >= 0.0 else -(h - sq)
+    if q == 0.0:
+        return 0.0, -1.0, False, False
+    r1 = q / c2
+    r2 = c0 / q
+    rlo = min(r1, r2)
+    rhi = max(r1, r2)
+    root_a = False
+    root_b = False
+    if rlo > lo:
+        lo = rlo
+        root_a = True
+    if rhi < hi:
+        hi = rhi
+        root_b = True
+    return lo, hi, root_a, root_b
+
+
+@inline_kernel
+def _clip_nested(c2, h, c0, disc, lo, hi):
+    """:func:`_clip_cone` for c2 > 0 (nested end balls): P > 0 outside its
+    roots and only the thick branch is real, so only ``lo`` can move.
+
+    Returns
+    -------
+    lo, hi : float
+        The clipped interval (``hi`` unchanged).
+    root_a, root_b : bool
+        Whether lo is a root of P; root_b is always false.
+    """
+    if disc > 0.0:
+        sq = math.sqrt(disc)
+        q = -(h + sq) if h >= 0.0 else -(h - sq)
+        rhi = max(q / c2, c0 / q)
+        if rhi > lo:
+            return rhi, hi, True, False
+    return lo, hi, False, False
+
+
+@inline_kernel
+def _clip_linear(h, c0, lo, hi):
+    """:func:`_clip_cone` for c2 = 0: P linear, 2 h t' + c0 > 0.
+
+    Returns
+    -------
+    lo, hi : float
+        The clipped interval (0, -1 when empty).
+    root_a, root_b : bool
+        Whether lo (hi) is the root of P rather than the clip passed in.
+    """
+    if h > 0.0:
+        r = -c0 / (2.0 * h)
+        if r > lo:
+            return r, hi, True, False
+    elif h < 0.0:
+        r = -c0 / (2.0 * h)
+        if r < hi:
+            return lo, r, False, True
+    elif c0 <= 0.0:
+        return 0.0, -1.0, False, False
+    return lo, hi, False, False
+
+
 @kernel
 def _support_local(seg, i, px, py, pz, inv_s2):
     """Support interval of segment ``i`` at p, in arc lengths measured from a
@@ -65,29 +188,11 @@ def _support_local(seg, i, px, py, pz, inv_s2):
     tau_o : float
         Radius at the origin.
     """
-    wx = px - seg[i, AX]
-    wy = py - seg[i, AY]
-    wz = pz - seg[i, AZ]
-    ux = seg[i, UX]
-    uy = seg[i, UY]
-    uz = seg[i, UZ]
     L = seg[i, LEN]
     d = seg[i, DELTA]
     tau0 = seg[i, TAU0]
-    wu = wx * ux + wy * uy + wz * uz
-    qx = wx - wu * ux
-    qy = wy - wu * uy
-    qz = wz - wu * uz
-    perp2 = qx * qx + qy * qy + qz * qz
-    if wu <= 0.0:
-        to = 0.0
-        e = wu
-    elif wu >= L:
-        to = L
-        e = wu - L
-    else:
-        to = wu
-        e = 0.0
+    wu, qx, qy, qz, perp2 = _axial_split(seg, i, px, py, pz)
+    to, e = _local_origin(wu, L)
     tau_o = tau0 + d * to
     tfoot = tau0 + d * wu
     c2 = d * d - inv_s2
@@ -96,48 +201,12 @@ def _support_local(seg, i, px, py, pz, inv_s2):
     disc = (tfoot * tfoot + c2 * perp2) * inv_s2     # h^2 - c2 c0
     lo = -to
     hi = L - to
-    root_a = False
-    root_b = False
     if c2 < 0.0:
-        if disc <= 0.0:
-            return to, e, 0.0, -1.0, False, False, qx, qy, qz, perp2, tau_o
-        sq = math.sqrt(disc)
-        q = -(h + sq) if h >= 0.0 else -(h - sq)
-        if q == 0.0:
-            return to, e, 0.0, -1.0, False, False, qx, qy, qz, perp2, tau_o
-        r1 = q / c2
-        r2 = c0 / q
-        rlo = min(r1, r2)
-        rhi = max(r1, r2)
-        if rlo > lo:
-            lo = rlo
-            root_a = True
-        if rhi < hi:
-            hi = rhi
-            root_b = True
+        lo, hi, root_a, root_b = _clip_cone(c2, h, c0, disc, lo, hi)
     elif c2 > 0.0:
-        # nested end balls: P > 0 outside its roots; only the thick branch is real
-        if disc > 0.0:
-            sq = math.sqrt(disc)
-            q = -(h + sq) if h >= 0.0 else -(h - sq)
-            rhi = max(q / c2, c0 / q)
-            if rhi > lo:
-                lo = rhi
-                root_a = True
+        lo, hi, root_a, root_b = _clip_nested(c2, h, c0, disc, lo, hi)
     else:
-        # P linear: 2 h t' + c0 > 0
-        if h > 0.0:
-            r = -c0 / (2.0 * h)
-            if r > lo:
-                lo = r
-                root_a = True
-        elif h < 0.0:
-            r = -c0 / (2.0 * h)
-            if r < hi:
-                hi = r
-                root_b = True
-        elif c0 <= 0.0:
-            return to, e, 0.0, -1.0, False, False, qx, qy, qz, perp2, tau_o
+        lo, hi, root_a, root_b = _clip_linear(h, c0, lo, hi)
     return to, e, lo, hi, root_a, root_b, qx, qy, qz, perp2, tau_o
 
 
@@ -266,14 +335,15 @@ def _series(Y, d, l, r0, r1, r2, m, grad, scratch):
     return f, h0, h1
 
 
-@kernel
-def _series_m3(Y, d, l, r0, r1, r2, m, grad):
-    """:func:`_series` for the default kernel n = 6 (m = 3): the same
-    operations in the same order on scalars (bit-identical results), without
-    the work array and the per-degree loops. ``m`` (= 3) is passed, not
-    folded, so that ``z ** nmax`` is the same power routine as the general path's.
+@inline_kernel
+def _powers_m3(Y):
+    """Y^1 .. Y^7 for :func:`_series_m3`, multiplied up as :func:`_series`
+    fills its table (``1.0 * Y`` included).
+
+    Returns
+    -------
+    tuple of 7 floats
     """
-    nmax = 2 * m
     y1 = 1.0 * Y
     y2 = y1 * Y
     y3 = y2 * Y
@@ -281,8 +351,21 @@ def _series_m3(Y, d, l, r0, r1, r2, m, grad):
     y5 = y4 * Y
     y6 = y5 * Y
     y7 = y6 * Y
-    y8 = y7 * Y
-    # R = 1 * (r0 + r1 y + r2 y^2), then R^2 and R^3, accumulated as _poly_mul_quad does
+    return y1, y2, y3, y4, y5, y6, y7
+
+
+@inline_kernel
+def _cube_m3(r0, r1, r2):
+    """Coefficients of R^2 and R^3, R(y) = r0 + r1 y + r2 y^2, accumulated in
+    the order of :func:`_poly_mul_quad` (from R = 1 * R, zeros included).
+
+    Returns
+    -------
+    a : tuple of 5 floats
+        [R^2]_0 .. [R^2]_4 (the gradient's R^(m-1)).
+    b : tuple of 7 floats
+        [R^3]_0 .. [R^3]_6.
+    """
     c0 = 0.0 + 1.0 * r0
     c1 = 0.0 + 1.0 * r1
     c2 = 0.0 + 1.0 * r2
@@ -298,73 +381,126 @@ def _series_m3(Y, d, l, r0, r1, r2, m, grad):
     b4 = ((0.0 + a2 * r2) + a3 * r1) + a4 * r0
     b5 = (0.0 + a3 * r2) + a4 * r1
     b6 = 0.0 + a4 * r2
-    # moments J_j = int_0^Y y^j / (1 - d y) dy, j = 0..6 (see _moments)
+    return (a0, a1, a2, a3, a4), (b0, b1, b2, b3, b4, b5, b6)
+
+
+@inline_kernel
+def _moments_m3_series(d, z, nmax, y):
+    """:func:`_moments`' series branch for nmax = 6: J_6 from the series in
+    z = d Y, then the damping downward recurrence to J_0.
+
+    ``y`` holds Y^1 .. Y^7 (:func:`_powers_m3`). Returns J_0 .. J_6 (tuple of 7).
+    """
+    sm = 0.0
+    zk = 1.0
+    for k in range(200):
+        term = zk * _RECIP[nmax + k + 1]
+        sm += term
+        if term < 1e-17 * sm:
+            break
+        zk *= z
+    j6 = y[6] * sm
+    j5 = d * j6 + y[5] * _RECIP[6]
+    j4 = d * j5 + y[4] * _RECIP[5]
+    j3 = d * j4 + y[3] * _RECIP[4]
+    j2 = d * j3 + y[2] * _RECIP[3]
+    j1 = d * j2 + y[1] * _RECIP[2]
+    j0 = d * j1 + y[0] * _RECIP[1]
+    return j0, j1, j2, j3, j4, j5, j6
+
+
+@inline_kernel
+def _moments_m3(Y, d, l, nmax, y):
+    """:func:`_moments` for nmax = 6 on scalars: J_j = int_0^Y y^j / (1 - d y) dy,
+    j = 0..6 (docs/math.md §2.4), with the same branches and operations.
+
+    ``y`` holds Y^1 .. Y^7 (:func:`_powers_m3`); ``nmax`` (= 6) is passed, not
+    folded, so that ``z ** nmax`` is the same power routine as the general path's.
+
+    Returns
+    -------
+    tuple of 7 floats
+        J_0 .. J_6.
+    """
     z = d * Y
     if d == 0.0:
-        j0 = y1 * _RECIP[1]
-        j1 = y2 * _RECIP[2]
-        j2 = y3 * _RECIP[3]
-        j3 = y4 * _RECIP[4]
-        j4 = y5 * _RECIP[5]
-        j5 = y6 * _RECIP[6]
-        j6 = y7 * _RECIP[7]
-    elif z <= 0.5 or z ** nmax <= 0.015625:
-        sm = 0.0
-        zk = 1.0
-        for k in range(200):
-            term = zk * _RECIP[nmax + k + 1]
-            sm += term
-            if term < 1e-17 * sm:
-                break
-            zk *= z
-        j6 = y7 * sm
-        j5 = d * j6 + y6 * _RECIP[6]
-        j4 = d * j5 + y5 * _RECIP[5]
-        j3 = d * j4 + y4 * _RECIP[4]
-        j2 = d * j3 + y3 * _RECIP[3]
-        j1 = d * j2 + y2 * _RECIP[2]
-        j0 = d * j1 + y1 * _RECIP[1]
-    else:
-        j0 = math.log1p(d * l) / d
-        j1 = (j0 - y1 / 1) / d
-        j2 = (j1 - y2 / 2) / d
-        j3 = (j2 - y3 / 3) / d
-        j4 = (j3 - y4 / 4) / d
-        j5 = (j4 - y5 / 5) / d
-        j6 = (j5 - y6 / 6) / d
-    f = 0.0 + b0 * j0
-    f += b1 * j1
-    f += b2 * j2
-    f += b3 * j3
-    f += b4 * j4
-    f += b5 * j5
-    f += b6 * j6
-    if not grad:
-        return f, 0.0, 0.0
+        return (y[0] * _RECIP[1], y[1] * _RECIP[2], y[2] * _RECIP[3], y[3] * _RECIP[4],
+                y[4] * _RECIP[5], y[5] * _RECIP[6], y[6] * _RECIP[7])
+    if z <= 0.5 or z ** nmax <= 0.015625:
+        return _moments_m3_series(d, z, nmax, y)
+    j0 = math.log1p(d * l) / d
+    j1 = (j0 - y[0] / 1) / d
+    j2 = (j1 - y[1] / 2) / d
+    j3 = (j2 - y[2] / 3) / d
+    j4 = (j3 - y[3] / 4) / d
+    j5 = (j4 - y[4] / 5) / d
+    j6 = (j5 - y[5] / 6) / d
+    return j0, j1, j2, j3, j4, j5, j6
+
+
+@inline_kernel
+def _grad_sums_m3(a, y, d):
+    """:func:`_series`' gradient sums for m = 3, term by term in its order.
+
+    ``a`` holds the coefficients of R^2 (:func:`_cube_m3`), ``y`` Y^1 .. Y^7.
+
+    Returns
+    -------
+    h0, h1 : float
+        ``sum_j [R^2]_j (Y^(j+1)/(j+1) - d Y^(j+2)/(j+2))`` and
+        ``sum_j [R^2]_j Y^(j+2)/(j+2)``.
+    """
     h0 = 0.0
     h1 = 0.0
-    t1 = y1 / 1
-    t2 = y2 / 2
-    h0 += a0 * (t1 - d * t2)
-    h1 += a0 * t2
-    t1 = y2 / 2
-    t2 = y3 / 3
-    h0 += a1 * (t1 - d * t2)
-    h1 += a1 * t2
-    t1 = y3 / 3
-    t2 = y4 / 4
-    h0 += a2 * (t1 - d * t2)
-    h1 += a2 * t2
-    t1 = y4 / 4
-    t2 = y5 / 5
-    h0 += a3 * (t1 - d * t2)
-    h1 += a3 * t2
-    t1 = y5 / 5
-    t2 = y6 / 6
-    h0 += a4 * (t1 - d * t2)
-    h1 += a4 * t2
-    return f, h0, h1
+    t1 = y[0] / 1
+    t2 = y[1] / 2
+    h0 += a[0] * (t1 - d * t2)
+    h1 += a[0] * t2
+    t1 = y[1] / 2
+    t2 = y[2] / 3
+    h0 += a[1] * (t1 - d * t2)
+    h1 += a[1] * t2
+    t1 = y[2] / 3
+    t2 = y[3] / 4
+    h0 += a[2] * (t1 - d * t2)
+    h1 += a[2] * t2
+    t1 = y[3] / 4
+    t2 = y[4] / 5
+    h0 += a[3] * (t1 - d * t2)
+    h1 += a[3] * t2
+    t1 = y[4] / 5
+    t2 = y[5] / 6
+    h0 += a[4] * (t1 - d * t2)
+    h1 += a[4] * t2
+    return h0, h1
 
+
+@kernel
+def _series_m3(Y, d, l, r0, r1, r2, m, grad):
+    """:func:`_series` for the default kernel n = 6 (m = 3): the same
+    operations in the same order on scalars (bit-identical results), without
+    the work array and the per-degree loops. ``m`` (= 3) is passed, not
+    folded, so that ``z ** nmax`` is the same power routine as the general path's.
+
+    Returns
+    -------
+    f, h0, h1 : float
+        As :func:`_series`.
+    """
+    y = _powers_m3(Y)
+    a, b = _cube_m3(r0, r1, r2)
+    J = _moments_m3(Y, d, l, 2 * m, y)
+    f = 0.0 + b[0] * J[0]
+    f += b[1] * J[1]
+    f += b[2] * J[2]
+    f += b[3] * J[3]
+    f += b[4] * J[4]
+    f += b[5] * J[5]
+    f += b[6] * J[6]
+    if not grad:
+        return f, 0.0, 0.0
+    h0, h1 = _grad_sums_m3(a, y, d)
+    return f, h0, h1
 
 
 @kernel

@@ -23,11 +23,15 @@ import numpy as np
 
 from .._jit import inline_kernel, kernel
 from .field import SCRATCH, segment_eval
-from .raysupport import H_FMAX, H_TIN, H_TOUT, NHIT, lipschitz
+from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz
 
 #: relative pad of every verdict "F > 1" / "F < 1" from bounds: a bound must
 #: clear 1 by PAD * (1 + |bound|), far above the rounding of the summed field
 PAD = 1e-10
+#: |F - 1| below this at both ends of a piece holding no voxel centre is
+#: rounding noise: crossings are not refined there (a pixel column lying in
+#: the surface of a constant-radius strut)
+SURFACE_BAND = 1e-9
 
 
 @kernel
@@ -135,6 +139,41 @@ def piece_members(hrec, order, a, b, ta, tb, sarr):
             ns += 1
             fmax += hrec[r, H_FMAX]
     return ns, fmax
+
+
+@kernel
+def cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, x0, x1, bps):
+    """The breakpoints of the cluster ``order[a:b]`` spanning ``[cs, ce]``
+    into ``bps``, sorted and unique; returns their count.
+
+    They are ``cs``, ``ce``, every member's cut ``t*`` inside its support
+    (EG22), with ``cut_support`` every member's support entry and exit, and
+    the extra cuts ``x0``, ``x1``; each one only strictly inside ``(cs, ce)``.
+    The tracer and the renderer both cut their clusters here.
+    """
+    bps[0] = cs
+    bps[1] = ce
+    nb = 2
+    for x in (x0, x1):
+        if x > cs and x < ce:
+            bps[nb] = x
+            nb += 1
+    for c in range(a, b):
+        r = order[c]
+        t_in = hrec[r, H_TIN]
+        t_out = hrec[r, H_TOUT]
+        ts = hrec[r, H_TSTAR]
+        if ts > t_in and ts < t_out and ts > cs and ts < ce:
+            bps[nb] = ts
+            nb += 1
+        if cut_support:
+            if t_in > cs and t_in < ce:
+                bps[nb] = t_in
+                nb += 1
+            if t_out > cs and t_out < ce:
+                bps[nb] = t_out
+                nb += 1
+    return sort_unique(bps, nb)
 
 
 @kernel

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from .._jit import kernel
+from .._jit import inline_kernel, kernel
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 
 # layout of the per-hit record written by ray_support into a row of ``hrec``
@@ -70,6 +70,194 @@ def _quad_neg_interval(A, B, C):
     return 0.0, -1.0
 
 
+@inline_kernel
+def _ray_frame(seg, i, ox, oy, oz, dx, dy, dz):
+    """Segment ``i`` seen from the ray ``o + t d``: projections on d and the
+    dot products of the parts perpendicular to d (docs/math.md §3.1).
+
+    With w = a - o and D = b - a = L u, the parts perpendicular to d are taken
+    explicitly (exact for axis-aligned rays), so that the squared distance of
+    q(s) = a + s D to the ray line is ``Ap s^2 + 2 Bp s + Cp``.
+
+    Returns
+    -------
+    wd, Dd : float
+        w.d and D.d (mm): the projection of q(s) on the ray is ``wd + s Dd``.
+    Ap, Bp, Cp : float
+        |D_perp|^2, w_perp.D_perp, |w_perp|^2 (mm^2).
+    """
+    L = seg[i, LEN]
+    Dx = L * seg[i, UX]
+    Dy = L * seg[i, UY]
+    Dz = L * seg[i, UZ]
+    wx = seg[i, AX] - ox
+    wy = seg[i, AY] - oy
+    wz = seg[i, AZ] - oz
+    wd = wx * dx + wy * dy + wz * dz
+    Dd = Dx * dx + Dy * dy + Dz * dz
+    # perpendicular parts (exact for axis-aligned rays)
+    wpx = wx - wd * dx
+    wpy = wy - wd * dy
+    wpz = wz - wd * dz
+    Dpx = Dx - Dd * dx
+    Dpy = Dy - Dd * dy
+    Dpz = Dz - Dd * dz
+    Ap = Dpx * Dpx + Dpy * Dpy + Dpz * Dpz
+    Bp = wpx * Dpx + wpy * Dpy + wpz * Dpz
+    Cp = wpx * wpx + wpy * wpy + wpz * wpz
+    return wd, Dd, Ap, Bp, Cp
+
+
+@inline_kernel
+def _stationary_point(k, A, B, C, Dd, E):
+    """Root ``k`` (0 or 1) of A E s^2 + 2 B E s + (B^2 + Dd^2 C) = 0: the
+    stationary points of the entry/exit t_c(s) -/+ sqrt(-Q(s)) (docs/math.md §3.2).
+
+    Returns
+    -------
+    ok : bool
+        Whether that root is a candidate (false: no such root).
+    s : float
+        The root (skeleton parameter).
+    """
+    a2 = A * E
+    b2 = B * E
+    c2 = B * B + Dd * Dd * C
+    if a2 == 0.0:
+        if k == 1 or b2 == 0.0:
+            return False, 0.0
+        return True, -c2 / (2.0 * b2)
+    disc = b2 * b2 - a2 * c2
+    if disc < 0.0:
+        # a double root pushed negative by rounding (e.g. a strut
+        # perpendicular to the ray): the vertex is the extremum.
+        # Any s in [s0, s1] is a real point of the support, so an
+        # extra candidate can never make the interval unsound.
+        if k == 1:
+            return False, 0.0
+        disc = 0.0
+    # stable roots q / a2 and c2 / q: with A ~ 0 (the ray along a
+    # generator of the support cone) the textbook (-b2 + sq) / a2
+    # cancels to 0 and the real stationary point was lost
+    sq = math.sqrt(disc)
+    qq = -(b2 + sq) if b2 >= 0.0 else -(b2 - sq)
+    if qq == 0.0:
+        if k == 1:
+            return False, 0.0
+        return True, 0.0
+    return True, (qq / a2 if k == 0 else c2 / qq)
+
+
+@inline_kernel
+def _widen(A, B, C, wd, Dd, s, t_in, t_out):
+    """[t_in, t_out] widened to the chord of the ray through the support ball
+    of q(s): t_c(s) -/+ sqrt(-Q(s)), Q(s) = A s^2 + 2 B s + C clamped to <= 0.
+
+    Returns
+    -------
+    t_in, t_out : float
+    """
+    q = -((A * s + 2.0 * B) * s + C)
+    if q < 0.0:
+        q = 0.0
+    r = math.sqrt(q)
+    tc = wd + s * Dd
+    if tc - r < t_in:
+        t_in = tc - r
+    if tc + r > t_out:
+        t_out = tc + r
+    return t_in, t_out
+
+
+@inline_kernel
+def _entry_exit(A, B, C, wd, Dd, s0, s1):
+    """Entry and exit of the ray through the support: the extremes of
+    t_c(s) -/+ sqrt(-Q(s)) over [s0, s1] (docs/math.md §3.2), unpadded.
+
+    Returns
+    -------
+    hit : bool
+        False when the support (a ball at the thick end) misses the ray.
+    t_in, t_out : float
+    """
+    E = A + Dd * Dd
+    if E <= 0.0:
+        # nested end balls: the support is the ball at the thick end (s = 1)
+        q = -(A + 2.0 * B + C)
+        if q <= 0.0:
+            return False, math.inf, -math.inf
+        r = math.sqrt(q)
+        return True, wd + Dd - r, wd + Dd + r
+    t_in = math.inf
+    t_out = -math.inf
+    # candidates: the ends s0, s1 of S, then the stationary points inside it
+    t_in, t_out = _widen(A, B, C, wd, Dd, s0, t_in, t_out)
+    t_in, t_out = _widen(A, B, C, wd, Dd, s1, t_in, t_out)
+    for k in range(2):
+        ok, s = _stationary_point(k, A, B, C, Dd, E)
+        if ok and s > s0 and s < s1:
+            t_in, t_out = _widen(A, B, C, wd, Dd, s, t_in, t_out)
+    return True, t_in, t_out
+
+
+@inline_kernel
+def _cut(Ap, Bp, Cp, tau0, dtau):
+    """Pre-segmentation cut: the skeleton parameter of least homothetic
+    distance |q(s) - line|^2 / tau(s)^2 over s in [0, 1] (docs/math.md §3.3).
+
+    Returns
+    -------
+    best_s : float
+        Its argmin s (0, 1 or the interior stationary point).
+    best_r : float
+        The least squared homothetic distance (dimensionless).
+    """
+    best_s = 0.0
+    best_r = Cp / (tau0 * tau0)
+    t1 = tau0 + dtau
+    r1 = (Ap + 2.0 * Bp + Cp) / (t1 * t1)
+    if r1 < best_r:
+        best_s = 1.0
+        best_r = r1
+    den = Ap * tau0 - Bp * dtau
+    if den != 0.0:
+        ss = (dtau * Cp - Bp * tau0) / den
+        if ss > 0.0 and ss < 1.0:
+            ts = tau0 + ss * dtau
+            rs = ((Ap * ss + 2.0 * Bp) * ss + Cp) / (ts * ts)
+            if rs < best_r:
+                best_s = ss
+                best_r = rs
+    return best_s, best_r
+
+
+@inline_kernel
+def _lipschitz_factor(xmin, n, sigma, norm, kmax, L, tmin):
+    """Per-primitive Lipschitz factor K' L / tau(s0)^2 (docs/math.md §4.1, §4.2).
+
+    K' bounds |k'(x)| for x >= ``xmin``: ``kmax`` up to the inflection point
+    sigma / sqrt(n - 1), |k'(xmin)| beyond; ``tmin`` = tau(s0) (mm).
+    """
+    if xmin <= sigma / math.sqrt(n - 1.0):
+        kp = kmax
+    else:
+        kp = kprime_abs(xmin, n, sigma, norm)
+    return kp * L / (tmin * tmin)
+
+
+@inline_kernel
+def _field_bound(xmin, n, sigma, norm, L, s0, s1, tmin):
+    """Upper bound of the field anywhere on the ray (docs/math.md §3.3): every
+    skeleton point q(s), s in [s0, s1], is at homothetic distance >= ``xmin``,
+    so f <= k(xmin) * int ds L / tau(s) <= k(xmin) L (s1 - s0) / tau(s0)
+    (``tmin`` = tau(s0)), padded by 1e-12 relative.
+    """
+    if xmin >= sigma:
+        return 0.0
+    kx = norm * (1.0 - xmin * xmin / (sigma * sigma)) ** (n // 2)
+    return kx * L * (s1 - s0) / tmin * (1.0 + 1e-12)
+
+
 @kernel
 def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, hrec, row):
     """Intersect ray ``o + t d`` with the support of segment ``i``.
@@ -98,131 +286,32 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, hrec, row)
     bool
         Whether the ray meets the (open) support.
     """
-    ux = seg[i, UX]
-    uy = seg[i, UY]
-    uz = seg[i, UZ]
     L = seg[i, LEN]
     tau0 = seg[i, TAU0]
     dtau = seg[i, DELTA] * L
-    Dx = L * ux
-    Dy = L * uy
-    Dz = L * uz
-    wx = seg[i, AX] - ox
-    wy = seg[i, AY] - oy
-    wz = seg[i, AZ] - oz
-    wd = wx * dx + wy * dy + wz * dz
-    Dd = Dx * dx + Dy * dy + Dz * dz
-    # perpendicular parts (exact for axis-aligned rays)
-    wpx = wx - wd * dx
-    wpy = wy - wd * dy
-    wpz = wz - wd * dz
-    Dpx = Dx - Dd * dx
-    Dpy = Dy - Dd * dy
-    Dpz = Dz - Dd * dz
+    wd, Dd, Ap, Bp, Cp = _ray_frame(seg, i, ox, oy, oz, dx, dy, dz)
+    # skeleton range S = [s0, s1] whose support ball meets the line: Q(s) < 0
     s2 = sigma * sigma
-    Ap = Dpx * Dpx + Dpy * Dpy + Dpz * Dpz
-    Bp = wpx * Dpx + wpy * Dpy + wpz * Dpz
-    Cp = wpx * wpx + wpy * wpy + wpz * wpz
     A = Ap - s2 * dtau * dtau
     B = Bp - s2 * tau0 * dtau
     C = Cp - s2 * tau0 * tau0
     s0, s1 = _quad_neg_interval(A, B, C)
     if not s1 > s0:
         return False
-    # entry / exit: extremes of tc(s) -/+ sqrt(-Q(s)) over [s0, s1]
-    E = A + Dd * Dd
-    t_in = math.inf
-    t_out = -math.inf
-    if E <= 0.0:
-        # nested end balls: the support is the ball at the thick end (s = 1)
-        q = -(A + 2.0 * B + C)
-        if q <= 0.0:
-            return False
-        r = math.sqrt(q)
-        t_in = wd + Dd - r
-        t_out = wd + Dd + r
-    else:
-        for c in range(4):
-            if c == 0:
-                s = s0
-            elif c == 1:
-                s = s1
-            else:
-                # stationary points: A E s^2 + 2 B E s + (B^2 + Dd^2 C) = 0
-                a2 = A * E
-                b2 = B * E
-                c2 = B * B + Dd * Dd * C
-                if a2 == 0.0:
-                    if c == 3 or b2 == 0.0:
-                        continue
-                    s = -c2 / (2.0 * b2)
-                else:
-                    disc = b2 * b2 - a2 * c2
-                    if disc < 0.0:
-                        # a double root pushed negative by rounding (e.g. a strut
-                        # perpendicular to the ray): the vertex is the extremum.
-                        # Any s in [s0, s1] is a real point of the support, so an
-                        # extra candidate can never make the interval unsound.
-                        if c == 3:
-                            continue
-                        disc = 0.0
-                    # stable roots q / a2 and c2 / q: with A ~ 0 (the ray along a
-                    # generator of the support cone) the textbook (-b2 + sq) / a2
-                    # cancels to 0 and the real stationary point was lost
-                    sq = math.sqrt(disc)
-                    qq = -(b2 + sq) if b2 >= 0.0 else -(b2 - sq)
-                    if qq == 0.0:
-                        if c == 3:
-                            continue
-                        s = 0.0
-                    else:
-                        s = qq / a2 if c == 2 else c2 / qq
-                if not (s > s0 and s < s1):
-                    continue
-            q = -((A * s + 2.0 * B) * s + C)
-            if q < 0.0:
-                q = 0.0
-            r = math.sqrt(q)
-            tc = wd + s * Dd
-            if tc - r < t_in:
-                t_in = tc - r
-            if tc + r > t_out:
-                t_out = tc + r
+    hit, t_in, t_out = _entry_exit(A, B, C, wd, Dd, s0, s1)
+    if not hit:
+        return False
+    # padded outward, far above the rounding (docs/math.md §3.2)
     pad = 1e-9 * (abs(t_in) + abs(t_out) + L + sigma * (tau0 + dtau))
     hrec[row, H_TIN] = t_in - pad
     hrec[row, H_TOUT] = t_out + pad
-    # pre-segmentation cut: argmin of the homothetic distance along the line
-    best_s = 0.0
-    best_r = Cp / (tau0 * tau0)
-    t1 = tau0 + dtau
-    r1 = (Ap + 2.0 * Bp + Cp) / (t1 * t1)
-    if r1 < best_r:
-        best_s = 1.0
-        best_r = r1
-    den = Ap * tau0 - Bp * dtau
-    if den != 0.0:
-        ss = (dtau * Cp - Bp * tau0) / den
-        if ss > 0.0 and ss < 1.0:
-            ts = tau0 + ss * dtau
-            rs = ((Ap * ss + 2.0 * Bp) * ss + Cp) / (ts * ts)
-            if rs < best_r:
-                best_s = ss
-                best_r = rs
+    # pre-segmentation cut t* and the least homothetic distance x_min (§3.3)
+    best_s, best_r = _cut(Ap, Bp, Cp, tau0, dtau)
     hrec[row, H_TSTAR] = wd + best_s * Dd
     xmin = math.sqrt(max(best_r, 0.0))
-    if xmin <= sigma / math.sqrt(n - 1.0):
-        kp = kmax
-    else:
-        kp = kprime_abs(xmin, n, sigma, norm)
     tmin = tau0 + s0 * dtau
-    hrec[row, H_LIP] = kp * L / (tmin * tmin)
-    # field bound on the whole ray: every skeleton point q(s), s in [s0, s1],
-    # is at homothetic distance >= xmin, so f <= k(xmin) * int ds L / tau(s)
-    if xmin >= sigma:
-        hrec[row, H_FMAX] = 0.0
-    else:
-        kx = norm * (1.0 - xmin * xmin / (sigma * sigma)) ** (n // 2)
-        hrec[row, H_FMAX] = kx * L * (s1 - s0) / tmin * (1.0 + 1e-12)
+    hrec[row, H_LIP] = _lipschitz_factor(xmin, n, sigma, norm, kmax, L, tmin)
+    hrec[row, H_FMAX] = _field_bound(xmin, n, sigma, norm, L, s0, s1, tmin)
     hrec[row, H_S0] = s0
     hrec[row, H_S1] = s1
     hrec[row, H_TP0] = wd

@@ -49,9 +49,9 @@ from .._jit import kernel, parallel_kernel
 from .borrow import borrow, keep_alive
 from .field import segment_eval
 from .lazy import complete_row, lazy_ends
-from .rays import (PAD, eval_along, hermite_point, leap_chain, next_cluster, piece_bounds, piece_ends,
-                   piece_members, sort_hits, sort_unique, walk_buffers)
-from .raysupport import H_TIN, H_TOUT, H_TSTAR, ray_support
+from .rays import (PAD, cluster_breakpoints, eval_along, hermite_point, leap_chain, next_cluster, piece_bounds,
+                   piece_ends, piece_members, sort_hits, walk_buffers)
+from .raysupport import H_TOUT, ray_support
 
 OK = 0
 ROOTS_FULL = 1
@@ -320,19 +320,7 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
         b, cs, ce = next_cluster(hrec, order, a, nh)
         if cs < 0.0:
             cs = 0.0
-        bps[0] = cs
-        bps[1] = ce
-        nb = 2
-        for c in range(a, b):
-            r = order[c]
-            for col in (H_TSTAR, H_TIN, H_TOUT):
-                tv = hrec[r, col]
-                if tv > cs and tv < ce:
-                    bps[nb] = tv
-                    nb += 1
-                if not cut_support:
-                    break
-        nb = sort_unique(bps, nb)
+        nb = cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, cs, cs, bps)
         piece = -1
         while piece < nb - 2:
             piece += 1

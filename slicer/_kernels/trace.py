@@ -32,9 +32,9 @@ from .._jit import kernel, parallel_kernel
 from .borrow import borrow, keep_alive
 from .field import segment_eval
 from .lazy import lazy_ends, settle, split_lazy
-from .rays import (PAD, eval_along, first_centre, hermite_point, leap_chain, next_cluster, piece_bounds_iv,
-                   piece_ends, piece_members, sort_hits, sort_unique, walk_buffers)
-from .raysupport import H_TIN, H_TOUT, H_TSTAR, lipschitz, ray_support
+from .rays import (PAD, SURFACE_BAND, cluster_breakpoints, eval_along, first_centre, hermite_point, leap_chain,
+                   next_cluster, piece_bounds_iv, piece_ends, piece_members, sort_hits, walk_buffers)
+from .raysupport import H_TIN, H_TOUT, lipschitz, ray_support
 
 OK = 0
 RUNS_FULL = 1
@@ -45,9 +45,6 @@ MAX_STACK = 256
 # these stack depths the splits fall back to the middle, which bounds the
 # depth by DEEP_CENTRES + 2 log2(K) + 2 and DEEP_SPANS + log2(h / span_tol) + 1.
 DEEP_CENTRES = 96
-# |F - 1| below this at both ends of a piece is rounding noise: spans are not
-# refined there (a pixel column lying in the surface of a constant-radius strut)
-SURFACE_BAND = 1e-9
 DEEP_SPANS = 150
 
 
@@ -159,27 +156,10 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
         if kc1 >= kc0 or (spans and ce > zlo and cs < zhi):
             # breakpoints: the cut t* of every member (EG22), and optionally
             # every support entry and exit; with spans, the grid's z range
-            bps[0] = cs
-            bps[1] = ce
-            nb = 2
             if spans:
-                if zlo > cs and zlo < ce:
-                    bps[nb] = zlo
-                    nb += 1
-                if zhi > cs and zhi < ce:
-                    bps[nb] = zhi
-                    nb += 1
-            for c in range(a, b):
-                r = order[c]
-                if cut_support:
-                    bps[nb] = hrec[r, H_TIN]
-                    bps[nb + 1] = hrec[r, H_TOUT]
-                    nb += 2
-                ts = hrec[r, H_TSTAR]
-                if ts > hrec[r, H_TIN] and ts < hrec[r, H_TOUT]:
-                    bps[nb] = ts
-                    nb += 1
-            nb = sort_unique(bps, nb)
+                nb = cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, zlo, zhi, bps)
+            else:
+                nb = cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, cs, cs, bps)
             tlast = cs
             j = -1
             while j < nb - 2:

@@ -41,7 +41,7 @@ from numba import prange
 from .._jit import kernel, parallel_kernel
 from .borrow import borrow, keep_alive
 from .field import SCRATCH, segment_eval
-from .rays import first_centre
+from .rays import PAD, SURFACE_BAND, first_centre
 from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz, ray_support
 
 OK = 0
@@ -50,10 +50,6 @@ RUNS_FULL = 1
 MAX_STACK = 256
 #: past this stack depth splits go to the middle (bounds the depth by DEEP + 2 log2(K) + 2)
 DEEP = 96
-#: relative pad of the settle tests (as the sum tracer)
-PAD = 1e-10
-#: |f - 1| below this at both ends of a centre-free piece is rounding noise: no more span splits
-SURFACE_BAND = 1e-9
 # counters of one ray: runs, crossings, evaluations
 C_RUN, C_X, C_EV = range(3)
 # float state of a strut walk: current point t, f, f'; then the ray's px, py
