@@ -484,6 +484,10 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
     with numba_threads(threads) as nthreads:
         todo = thread_order(todo, np.diff(bk.offsets)[todo], nthreads)
         cap0 = B * B * 16 if keep_roots else 1
+        # the launcher's argument bundles (slicer._kernels.render.render_buckets), one type each
+        buckets = (int(bk.nbx), int(B), bk.offsets, bk.ids, bk.table, bk.boxes)
+        prim = (int(n), float(sigma), float(norm), float(kmax))
+        opt = (float(tol), bool(strict), bool(bisection), bool(cut_support), bool(lazy), bool(keep_roots))
 
         def launch(pending, scale):
             cap = cap0 * scale
@@ -493,9 +497,8 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
             stats = np.zeros((nb, NSTAT), np.int64)
             # dynamic schedules hand out one bucket at a time (thread_order covers static ones)
             with one_item_per_thread():
-                render_buckets(pending, bk.nbx, B, W, H, bk.offsets, bk.ids, bk.table, bk.boxes, cam.array,
-                               n, sigma, norm, kmax, tol, strict, bisection, cut_support, lazy, keep_roots, shade,
-                               cap, rgba, count, ray_nroot, roots, stats)
+                render_buckets(pending, buckets, (int(W), int(H), cam.array), prim, opt, shade,
+                               (rgba, count, ray_nroot, roots, stats))
             full = stats[:, ST_STATUS] == ROOTS_FULL
             done = ~full
             tot[:] += stats[done].sum(axis=0)

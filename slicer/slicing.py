@@ -319,13 +319,19 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
     """Run the kernel on a batch of buckets, retrying overflowing ones with more room.
 
     Returns, per bucket, ``(bucket, runs per ray, k0, k1, evaluations,
-    crossings per ray, crossing heights)``. ``lazy`` (None: a kernel without
-    that argument, the union tracer) is passed after ``cut_support``.
+    crossings per ray, crossing heights)``. ``lazy`` (None: a kernel
+    without the lazy walk, the union tracer) is the interval walk's option.
     """
-    walk = (cut_support,) if lazy is None else (cut_support, bool(lazy))
     B = bk.size
     out = []
     cap0, xcap0 = cap, (cap if spans else 1)
+    # the launchers' argument bundles (slicer._kernels.trace.trace_buckets), one type each
+    buckets = (int(bk.nbx), int(B), bk.offsets, bk.ids, bk.table, bk.boxes)
+    layout = (int(grid.width), int(grid.height), float(grid.origin[0]), float(grid.origin[1]),
+              float(grid.pixel_size[0]), float(grid.pixel_size[1]), float(grid.origin[2]),
+              float(grid.layer_height), int(grid.layers))
+    prim = (int(n), float(sigma), float(norm), float(kmax))
+    opt = (bool(strict), bool(cut_support), bool(lazy), bool(spans), float(span_tol) if spans else 0.0)
 
     def launch(pending, scale):
         cap, xcap = cap0 * scale, xcap0 * (scale if spans else 1)
@@ -337,11 +343,7 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
         ray_nx = np.zeros((nb, B * B), np.int64)
         cross_z = np.zeros((nb, xcap))
         with one_item_per_thread():
-            kern(code, pending, bk.nbx, B, grid.width, grid.height, bk.offsets, bk.ids, bk.table,
-                 bk.boxes, grid.origin[0], grid.origin[1], grid.pixel_size[0],
-                 grid.pixel_size[1], grid.origin[2], grid.layer_height, grid.layers, n, sigma, norm,
-                 kmax, strict, *walk, bk.longest(), cap, ray_nrun, run_k0, run_k1, stats,
-                 spans, span_tol if spans else 0.0, xcap, ray_nx, cross_z)
+            kern(code, pending, buckets, layout, prim, opt, (ray_nrun, run_k0, run_k1, stats, ray_nx, cross_z))
         full = stats[:, 0] == RUNS_FULL
         for q in np.nonzero(~full)[0]:
             used = int(ray_nrun[q].sum())

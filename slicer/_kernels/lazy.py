@@ -114,18 +114,19 @@ def split_lazy(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, ia, ib, ro
             FP[row, s] = fp
         else:
             _carry(F, FH, FP, ia, ib, row, s, k)
-    inside, ne = settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, row, mstat, ia, ib, True, cache)
+    inside, ne = settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, row, mstat, (ia, ib), True, cache)
     return inside, nev + ne
 
 
 @kernel
-def settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, row, mstat, ia, ib, keep_sign, cache):
+def settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, row, mstat, stretch, keep_sign, cache):
     """The class ``F(t) >= 1`` of the point of ``row``, evaluating its
     unknown primitives widest bound first until the summed bound clears 1 by
     the pad (or every value is known: then the in-order sum decides).
     With ``keep_sign``, an evaluated monotone primitive (``mstat``) keeps the
-    slope sign of its stretch (rows ``ia``/``ib``) if rounding flattened it.
-    Returns ``(inside, evaluations)``."""
+    slope sign of its stretch (rows ``stretch = (ia, ib)``) if rounding
+    flattened it. Returns ``(inside, evaluations)``."""
+    ia, ib = stretch
     F, FH, FP = rows
     nev = 0
     while True:

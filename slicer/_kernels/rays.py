@@ -197,10 +197,10 @@ def sort_unique(vals, nv):
 
 
 @kernel
-def eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2, norm, scratch,
-               F, FP, row, ct, cf, cfp):
+def eval_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, ct, cf, cfp):
     """Value and directional derivative ``grad f . d`` of the active primitives
-    ``hprim[sarr[:ns]]`` at ``o + t d``.
+    ``hprim[sarr[:ns]]`` at ``o + t d`` (``ray = (ox, oy, oz, dx, dy, dz)``,
+    ``kp = (m, 1/sigma^2, N)``).
 
     A primitive is zero (value and derivative) outside the open support
     interval ``(t_in, t_out)`` of its hit record, and at its ends (the kernel
@@ -216,6 +216,8 @@ def eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2,
     nev : int
         Primitive evaluations done.
     """
+    ox, oy, oz, dx, dy, dz = ray
+    m, inv_s2, norm = kp
     px = ox + t * dx
     py = oy + t * dy
     pz = oz + t * dz
@@ -312,11 +314,11 @@ def inside_leap(seg, hprim, hrec, sarr, ns, F, FP, cur, ray, tb, goal, kp, scrat
 
 
 @kernel
-def leap_chain(seg, hprim, hrec, sarr, ns, F, FP, cur, ray, bps, j, nb, fcur, kp, scratch, cache):
+def leap_chain(seg, hprim, hrec, sarr, ns, rows, cur, ray, bps, j, nb, fcur, kp, scratch, cache):
     """How far the ray is proven inside from breakpoint ``bps[j]``, where
-    row ``cur`` holds the exact values of the piece's primitives (their sum
-    ``fcur >= 1``), in leaps of :func:`inside_leap` from breakpoint to
-    breakpoint.
+    row ``cur`` of ``F`` (``rows = (F, FP)``) holds the exact values of the
+    piece's primitives (their sum ``fcur >= 1``), in leaps of
+    :func:`inside_leap` from breakpoint to breakpoint.
 
     Each leap tries ``step`` breakpoints ahead (:data:`FIRST_LEAP` at
     first), doubles the step after a success (up to :data:`MAX_LEAP`) and
@@ -331,6 +333,7 @@ def leap_chain(seg, hprim, hrec, sarr, ns, F, FP, cur, ray, bps, j, nb, fcur, kp
         The ray is inside on ``[bps[j], bps[jj]]`` (``jj = j``: no leap held).
     nevals : int
     """
+    F, FP = rows
     goal = 1.0 + PAD * (1.0 + fcur)
     jj = j
     step = min(FIRST_LEAP, nb - 1 - j)

@@ -105,9 +105,12 @@ def pixel_rays(cam, W, H, origin, direction):
 
 
 @kernel
-def field_grad_along(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2, norm, scratch):
+def field_grad_along(seg, hprim, sarr, ns, ray, t, kp, scratch):
     """F, its gradient (1/mm) and ``grad F . d`` at ``o + t d`` over the active
-    primitives (no cache: refinement points are never revisited)."""
+    primitives (no cache: refinement points are never revisited);
+    ``ray = (ox, oy, oz, dx, dy, dz)``, ``kp = (m, 1/sigma^2, N)``."""
+    ox, oy, oz, dx, dy, dz = ray
+    m, inv_s2, norm = kp
     px = ox + t * dx
     py = oy + t * dy
     pz = oz + t * dz
@@ -125,10 +128,10 @@ def field_grad_along(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz, t, m, inv_s2,
 
 
 @kernel
-def refine_root(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz, a, b, ga, gb, da, db, tol, bisect,
-                m, inv_s2, norm, scratch):
-    """Converge on the crossing bracketed by ``[a, b]`` until it is narrower
-    than ``tol``.
+def refine_root(seg, hprim, sarr, ns, ray, a, b, ga, gb, da, db, tol, bisect, kp, scratch):
+    """Converge on the crossing bracketed by ``[a, b]`` of the ray ``ray =
+    (ox, oy, oz, dx, dy, dz)`` until it is narrower than ``tol`` (``kp =
+    (m, 1/sigma^2, N)``).
 
     ``ga = F(a) - 1`` and ``gb = F(b) - 1`` lie on opposite sides of the
     iso-value (``F >= 1`` is inside); ``da``, ``db`` are ``F'`` along the ray.
@@ -169,8 +172,7 @@ def refine_root(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz, a, b, ga, gb, da, 
                 tm = b - q
         if not (tm > a and tm < b):
             break
-        F, Gx, Gy, Gz, Fp = field_grad_along(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz, tm,
-                                             m, inv_s2, norm, scratch)
+        F, Gx, Gy, Gz, Fp = field_grad_along(seg, hprim, sarr, ns, ray, tm, kp, scratch)
         nev += ns
         gx = Gx
         gy = Gy
@@ -238,10 +240,8 @@ def shade_crossing(shade, dx, dy, dz, gx, gy, gz, rgb):
 
 
 @kernel
-def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, strict, bisect,
-               cut_support, keep_roots, shade, scratch, hprim, hrec, order, bps, sarr,
-               st_t, st_f, st_fp, ct, cf, cfp, rgb, roots, cap, out4, counts, st_fh, mstat, lazy):
-    """All crossings of the ray of pixel (i, j), shaded and composited.
+def render_ray(seg, boxes2d, ids, i0, i1, cam, ij, prim, opt, shade, bufs, rows, cache, out):
+    """All crossings of the ray of pixel ``ij = (i, j)``, shaded and composited.
 
     With ``lazy`` (and not ``strict``), a piece is first bounded lazily
     (:func:`slicer._kernels.lazy.lazy_ends`: each primitive from its last
@@ -261,33 +261,45 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
         Bucket list; ``ids[i0:i1]`` is this pixel's bucket.
     cam, shade : float64
         Camera and shading arrays (module docstring).
-    tol : float
-        Crossing tolerance, mm.
-    strict, bisect, cut_support, keep_roots : bool
-        Lipschitz bounds only; pure bisection refinement; cut at support
-        entries and exits as well as at every t*; find every root (no early
-        stop; write them to ``roots``).
-    roots : (cap,) float64, out
-        The pixel's crossings, sorted (only with ``keep_roots``).
-    out4 : (4,) float64, out
-        Premultiplied RGB and alpha.
-    counts : (5,) int64, in/out
-        Evaluations added: isolation, refinement, shading; 1 added to
-        ``counts[3]`` when the opacity cut-off stopped the ray; ``counts[4]``:
-        the part of the isolation evaluations spent splitting ambiguous pieces.
+    prim : tuple
+        ``(n, sigma, N, kmax)``: kernel degree, support factor,
+        normalisation, max |k'|.
+    opt : tuple
+        ``(tol, strict, bisect, cut_support, lazy, keep_roots)``: crossing
+        tolerance (mm); Lipschitz bounds only; pure bisection refinement;
+        cut at support entries and exits as well as at every t*; the lazy
+        walk; find every root (no early stop; write them to ``roots``).
+    bufs, rows, cache : tuple
+        The walk's work arrays (:func:`slicer._kernels.rays.walk_buffers`):
+        ``(scratch, hprim, hrec, order, bps, sarr, mstat, st_t)``;
+        per-primitive rows ``(F, FH, FP)``; each hit's last evaluation
+        ``(ct, cf, cfp)``.
+    out : tuple
+        ``(rgb, roots, out4, counts)``: (3,) work array; (cap,) float64, the
+        pixel's crossings, sorted (only with ``keep_roots``); (4,) float64,
+        premultiplied RGB and alpha, out; (5,) int64, evaluations added:
+        isolation, refinement, shading; 1 added to ``counts[3]`` when the
+        opacity cut-off stopped the ray; ``counts[4]``: the part of the
+        isolation evaluations spent splitting ambiguous pieces.
 
     Returns
     -------
     int
         Number of crossings found, or -1 when ``roots`` was too small.
     """
+    i, j = ij
+    n, sigma, norm, kmax = prim
+    tol, strict, bisect, cut_support, lazy, keep_roots = opt
+    scratch, hprim, hrec, order, bps, sarr, mstat, st_t = bufs
+    st_f, st_fh, st_fp = rows
+    ct, cf, cfp = cache
+    rgb, roots, out4, counts = out
+    cap = roots.shape[0]
     m = n // 2
     inv_s2 = 1.0 / (sigma * sigma)
     ox, oy, oz, dx, dy, dz = pixel_ray(cam, i, j)
     ray = (ox, oy, oz, dx, dy, dz)
     kp = (m, inv_s2, norm)
-    rows = (st_f, st_fh, st_fp)
-    cache = (ct, cf, cfp)
     cur = st_f.shape[0] - 1     # row of the values at the current point (stack slots below it)
     u = i + 0.5
     v = j + 0.5
@@ -330,19 +342,17 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
             if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
                 continue   # the primitives' bounds on the whole ray exclude 1
             if strict or not lazy:
-                fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, ta, m, inv_s2, norm,
-                                       scratch, st_f, st_fp, cur, ct, cf, cfp)
+                fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, st_f, st_fp, cur, ct, cf, cfp)
                 if not strict and fcur >= 1.0 and piece + 2 < nb:
                     # inside at ta: no crossing as far as the unimodal lower bound reaches
-                    jj, ne = leap_chain(seg, hprim, hrec, sarr, ns, st_f, st_fp, cur, ray, bps, piece, nb, fcur, kp,
-                                        scratch, cache)
+                    jj, ne = leap_chain(seg, hprim, hrec, sarr, ns, (st_f, st_fp), cur, ray, bps, piece, nb, fcur,
+                                        kp, scratch, cache)
                     counts[0] += ne
                     if jj > piece:
                         counts[0] += ne1
                         piece = jj - 1
                         continue
-                _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, tb, m, inv_s2, norm,
-                                    scratch, st_f, st_fp, 0, ct, cf, cfp)
+                _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, st_f, st_fp, 0, ct, cf, cfp)
             else:
                 settled, ne = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, cur, 0, mstat,
                                         cache)
@@ -368,8 +378,8 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
                 if not settle and mono == 0 and width > tol and p + 2 <= MAX_STACK \
                         and tm > tcur and tm < te:
                     # ambiguous: split at the middle; the right part keeps slot p
-                    _, ne = eval_along(seg, hprim, hrec, sarr, ns, ox, oy, oz, dx, dy, dz, tm, m, inv_s2, norm,
-                                       scratch, st_f, st_fp, p + 1, ct, cf, cfp)
+                    _, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, tm, kp, scratch, st_f, st_fp, p + 1, ct, cf,
+                                       cfp)
                     counts[0] += ne
                     counts[4] += ne
                     st_t[p + 1] = tm
@@ -377,9 +387,8 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
                     continue
                 if not settle and (fcur >= 1.0) != (fe >= 1.0):
                     # one crossing (monotone piece) or an odd number within tol
-                    t, gx, gy, gz, ne, have = refine_root(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz,
-                                                          tcur, te, fcur - 1.0, fe - 1.0, d0, d1, tol,
-                                                          bisect, m, inv_s2, norm, scratch)
+                    t, gx, gy, gz, ne, have = refine_root(seg, hprim, sarr, ns, ray, tcur, te, fcur - 1.0,
+                                                          fe - 1.0, d0, d1, tol, bisect, kp, scratch)
                     counts[1] += ne
                     if keep_roots:
                         if nroot >= cap:
@@ -388,8 +397,7 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
                     nroot += 1
                     if not cut:
                         if not have:
-                            _, gx, gy, gz, _ = field_grad_along(seg, hprim, sarr, ns, ox, oy, oz, dx, dy, dz,
-                                                                t, m, inv_s2, norm, scratch)
+                            _, gx, gy, gz, _ = field_grad_along(seg, hprim, sarr, ns, ray, t, kp, scratch)
                             counts[2] += ns
                         shade_crossing(shade, dx, dy, dz, gx, gy, gz, rgb)
                         wgt = (1.0 - acc_a) * alpha
@@ -422,78 +430,94 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, 
 
 
 @parallel_kernel
-def render_buckets(buckets, nbx, B, W, H, offsets, ids, seg, boxes2d, cam, n, sigma, norm, kmax,
-                   tol, strict, bisect, cut_support, lazy, keep_roots, shade, cap, rgba, count, ray_nroot, roots, stats):
+def render_buckets(buckets, bk, screen, prim, opt, shade, out):
     """Render the pixels of the given buckets in parallel (one bucket per task).
 
     Parameters
     ----------
     buckets : (nb,) int64
         Flat bucket indices ``by * nbx + bx``.
-    B, W, H : int
-        Bucket edge and image size, pixels.
-    offsets, ids : int64
-        CSR bucket lists (each sorted by support entry depth).
-    rgba : (H, W, 4) float64, out
-        Premultiplied colour and alpha of each pixel.
-    count : (H, W) int64, out
-        Crossings found per pixel.
-    ray_nroot : (nb, B*B) int64, out
-        Crossings per ray of each bucket (row-major inside the bucket).
-    roots : (nb, cap) float64, out
-        With ``keep_roots``: each bucket's crossings, ray after ray.
-    stats : (nb, NSTAT) int64, out
-        Status and counters per bucket (``ST_*``).
+    bk : tuple
+        ``(nbx, B, offsets, ids, seg, boxes2d)``: buckets per row and bucket
+        edge (pixels); CSR bucket lists (int64, each sorted by support entry
+        depth); the segment table and each segment's screen box.
+    screen : tuple
+        ``(W, H, cam)``: image size (pixels) and camera array.
+    prim : tuple
+        ``(n, sigma, N, kmax)``: kernel degree, support factor,
+        normalisation, max |k'|.
+    opt : tuple
+        ``(tol, strict, bisect, cut_support, lazy, keep_roots)``, as
+        :func:`render_ray`.
+    shade : (NSHADE,) float64
+        Shading array (module docstring).
+    out : tuple, out
+        ``(rgba, count, ray_nroot, roots, stats)``: premultiplied colour and
+        alpha of each pixel ((H, W, 4) float64); crossings found per pixel
+        ((H, W) int64); crossings per ray of each bucket ((nb, B*B) int64,
+        row-major inside the bucket); with ``keep_roots``, each bucket's
+        crossings, ray after ray ((nb, cap) float64); status and counters
+        per bucket ((nb, NSTAT) int64, ``ST_*``).
     """
-    nbk = buckets.shape[0]
+    nbx, B, offsets, ids, seg, boxes2d = bk
+    W, H, cam = screen
     # borrowed views (slicer._kernels.borrow): the arguments outlive the launch
-    ids = borrow(ids)
-    seg = borrow(seg)
-    boxes2d = borrow(boxes2d)
-    cam = borrow(cam)
-    for q in prange(nbk):
-        bidx = buckets[q]
-        by = bidx // nbx
-        bx = bidx - by * nbx
-        i0 = offsets[bidx]
-        i1 = offsets[bidx + 1]
-        nl = max(i1 - i0, 1)
-        own = walk_buffers(nl, MAX_STACK)
-        own_more = (np.empty((MAX_STACK + 1, nl)), np.empty(nl, dtype=np.int64), np.empty(3), np.empty(4),
-                    np.zeros(5, dtype=np.int64))
-        scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = borrow(own)
-        st_fh, mstat, rgb, out4, counts = borrow(own_more)
-        roots_q = borrow(roots[q])
-        used = 0
-        nroot_tot = 0
-        status = OK
-        for ly in range(B):
-            j = by * B + ly
-            for lx in range(B):
-                i = bx * B + lx
-                ray_nroot[q, ly * B + lx] = 0
-                if i >= W or j >= H or status != OK:
-                    continue
-                nr = render_ray(seg, boxes2d, ids, i0, i1, cam, i, j, n, sigma, norm, kmax, tol, strict,
-                                bisect, cut_support, keep_roots, shade, scratch, hprim, hrec, order, bps, sarr,
-                                st_t, st_f, st_fp, ct, cf, cfp, rgb, roots_q[used:], cap - used,
-                                out4, counts, st_fh, mstat, lazy)
-                if nr < 0:
-                    status = ROOTS_FULL
-                    continue
-                for c in range(4):
-                    rgba[j, i, c] = out4[c]
-                count[j, i] = nr
-                ray_nroot[q, ly * B + lx] = nr
-                nroot_tot += nr
-                if keep_roots:
-                    used += nr
-        stats[q, ST_STATUS] = status
-        stats[q, ST_EV_ISOLATE] = counts[0]
-        stats[q, ST_EV_REFINE] = counts[1]
-        stats[q, ST_EV_SHADE] = counts[2]
-        stats[q, ST_ROOTS] = nroot_tot
-        stats[q, ST_CUT] = counts[3]
-        stats[q, ST_EV_SPLIT] = counts[4]
-        keep_alive(own)
-        keep_alive(own_more)
+    bk = (nbx, B, offsets, borrow(ids), borrow(seg), borrow(boxes2d))
+    screen = (W, H, borrow(cam))
+    for q in prange(buckets.shape[0]):
+        _render_bucket(q, buckets[q], bk, screen, prim, opt, shade, out)
+
+
+@kernel
+def _render_bucket(q, bidx, bk, screen, prim, opt, shade, out):
+    """Render the pixels of bucket ``bidx`` into the images and row ``q``
+    of the per-bucket outputs (arguments as :func:`render_buckets`)."""
+    nbx, B, offsets, ids, seg, boxes2d = bk
+    W, H, cam = screen
+    n, sigma, norm, kmax = prim
+    tol, strict, bisect, cut_support, lazy, keep_roots = opt
+    rgba, count, ray_nroot, roots, stats = out
+    cap = roots.shape[1]
+    by = bidx // nbx
+    bx = bidx - by * nbx
+    i0 = offsets[bidx]
+    i1 = offsets[bidx + 1]
+    nl = max(i1 - i0, 1)
+    own = walk_buffers(nl, MAX_STACK)
+    own_more = (np.empty((MAX_STACK + 1, nl)), np.empty(nl, dtype=np.int64), np.empty(3), np.empty(4),
+                np.zeros(5, dtype=np.int64))
+    scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = borrow(own)
+    st_fh, mstat, rgb, out4, counts = borrow(own_more)
+    bufs = (scratch, hprim, hrec, order, bps, sarr, mstat, st_t)
+    roots_q = borrow(roots[q])
+    used = 0
+    nroot_tot = 0
+    status = OK
+    for ly in range(B):
+        j = by * B + ly
+        for lx in range(B):
+            i = bx * B + lx
+            ray_nroot[q, ly * B + lx] = 0
+            if i >= W or j >= H or status != OK:
+                continue
+            nr = render_ray(seg, boxes2d, ids, i0, i1, cam, (i, j), prim, opt, shade, bufs, (st_f, st_fh, st_fp),
+                            (ct, cf, cfp), (rgb, roots_q[used:], out4, counts))
+            if nr < 0:
+                status = ROOTS_FULL
+                continue
+            for c in range(4):
+                rgba[j, i, c] = out4[c]
+            count[j, i] = nr
+            ray_nroot[q, ly * B + lx] = nr
+            nroot_tot += nr
+            if keep_roots:
+                used += nr
+    stats[q, ST_STATUS] = status
+    stats[q, ST_EV_ISOLATE] = counts[0]
+    stats[q, ST_EV_REFINE] = counts[1]
+    stats[q, ST_EV_SHADE] = counts[2]
+    stats[q, ST_ROOTS] = nroot_tot
+    stats[q, ST_CUT] = counts[3]
+    stats[q, ST_EV_SPLIT] = counts[4]
+    keep_alive(own)
+    keep_alive(own_more)

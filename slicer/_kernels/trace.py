@@ -67,11 +67,12 @@ def _emit(k0, k1, inside, rk0, rk1, nrun, cap):
 
 
 @kernel
-def _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order):
+def _ray_hits(seg, boxes, ids, i0, i1, px, py, prim, zlo, zhi, hprim, hrec, order):
     """Hit records of the bucket's segments ids[i0:i1] with the vertical ray
     at (px, py), kept if they reach [zlo, zhi]; returns the count, sorted by t_in
-    into ``order``. A segment whose support box misses the ray is skipped
-    before the exact test."""
+    into ``order``; ``prim = (n, sigma, N, kmax)``. A segment whose support
+    box misses the ray is skipped before the exact test."""
+    n, sigma, norm, kmax = prim
     nh = 0
     for r in range(i0, i1):
         g = ids[r]
@@ -101,10 +102,27 @@ def _cluster_field(seg, hprim, hrec, order, a, b, px, py, z, m, inv_s2, norm, sc
 
 
 @kernel
-def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax, strict, cut_support, lazy,
-                       scratch, hprim, hrec, order, bps, sarr, st_f, st_fh, st_fp, mstat,
-                       st_kind, st_t, st_k0, st_k1, ct, cf, cfp, rk0, rk1, cap, spans, span_tol, cz, xcap):
+def trace_ray_interval(seg, boxes, ids, i0, i1, xy, col, prim, opt, bufs, rows, stack, cache, out):
     """Classify the K voxel centres of one ray (interval method).
+
+    Parameters
+    ----------
+    seg, boxes, ids, i0, i1
+        The segment table, the support boxes and the bucket list ``ids[i0:i1]``.
+    xy : tuple
+        ``(px, py)``: the vertical ray's position (mm).
+    col, prim, opt : tuple
+        ``(z0, h, K)``: first centre and layer height (mm), number of
+        centres; ``(n, sigma, N, kmax)``; ``(strict, cut_support, lazy,
+        spans, span_tol)``.
+    bufs, rows, stack, cache : tuple
+        The walk's work arrays (:func:`slicer._kernels.rays.walk_buffers`):
+        ``(scratch, hprim, hrec, order, bps, sarr, mstat)``; per-primitive
+        rows ``(F, FH, FP)``; the piece stack ``(kind, t, k0, k1)``; each
+        hit's last evaluation ``(ct, cf, cfp)``.
+    out : tuple
+        ``(rk0, rk1, cz)``: room for the ray's runs and crossings (their
+        lengths are the capacities).
 
     With ``spans``, also locate every crossing of F = 1 inside the grid's z
     range [z0 - h/2, z0 + (K - 1/2) h] to within ``span_tol``: ambiguous
@@ -116,19 +134,30 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     gets a crossing exactly there.
 
     With ``lazy`` (and neither spans nor ``strict``), the walk is lazy
-    (:func:`slicer._kernels.lazy.split_lazy`): ``st_f`` / ``st_fh`` hold
+    (:func:`slicer._kernels.lazy.split_lazy`): ``F`` / ``FH`` hold
     per-primitive lower / upper bounds, equal where the value is known.
 
     Returns
     -------
     nrun : int
-        Number of runs written to rk0/rk1 (-1 when ``cap`` or ``xcap`` was
-        too small).
+        Number of runs written to rk0/rk1 (-1 when ``rk0`` or ``cz`` was
+        too short).
     nevals : int
         Primitive evaluations performed.
     nx : int
         Number of crossings written to ``cz``.
     """
+    px, py = xy
+    z0, h, K = col
+    n, sigma, norm, kmax = prim
+    strict, cut_support, lazy, spans, span_tol = opt
+    scratch, hprim, hrec, order, bps, sarr, mstat = bufs
+    st_f, st_fh, st_fp = rows
+    st_kind, st_t, st_k0, st_k1 = stack
+    ct, cf, cfp = cache
+    rk0, rk1, cz = out
+    cap = rk0.shape[0]
+    xcap = cz.shape[0]
     m = n // 2
     inv_s2 = 1.0 / (sigma * sigma)
     zlo = z0 - 0.5 * h
@@ -136,11 +165,9 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
     lazy = lazy and not spans and not strict
     ray = (px, py, 0.0, 0.0, 0.0, 1.0)
     kp = (m, inv_s2, norm)
-    rows = (st_f, st_fh, st_fp)
     fh = st_fh if lazy else st_f     # eager: every bound is a value
-    cache = (ct, cf, cfp)
     cur = st_f.shape[0] - 1     # row of the values at the current point (stack slots below it)
-    nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
+    nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, (n, sigma, norm, kmax), zlo, zhi, hprim, hrec, order)
     for r in range(nh):
         ct[r] = math.nan
     nrun = 0
@@ -183,8 +210,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                     for s in range(ns):
                         fcur += st_f[cur, s]
                 else:
-                    fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ta, m,
-                                           inv_s2, norm, scratch, st_f, st_fp, cur, ct, cf, cfp)
+                    fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, st_f, st_fp,
+                                           cur, ct, cf, cfp)
                     nev += ne1
                 if spans and (fcur >= 1.0) != inside:
                     # only after a skipped stretch (below the grid): enter here
@@ -196,7 +223,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                 if leaps and fcur >= 1.0 and j + 2 < nb:
                     # inside at ta: settle as many breakpoints ahead as the
                     # unimodal lower bound proves inside at once
-                    jj, ne1 = leap_chain(seg, hprim, hrec, sarr, ns, st_f, st_fp, cur, ray, bps, j, nb, fcur, kp,
+                    jj, ne1 = leap_chain(seg, hprim, hrec, sarr, ns, (st_f, st_fp), cur, ray, bps, j, nb, fcur, kp,
                                          scratch, cache)
                     nev += ne1
                     if jj > j:
@@ -207,8 +234,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                         j = jj - 1
                         continue
                 if not lazy:
-                    _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, tb, m, inv_s2,
-                                        norm, scratch, st_f, st_fp, 0, ct, cf, cfp)
+                    _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, st_f, st_fp, 0, ct, cf, cfp)
                     nev += ne2
                 tcur = ta
                 sp = 1
@@ -259,9 +285,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                                     else:
                                         ts = tr - 0.5 * span_tol
                                     ts = min(max(ts, tcur + 0.125 * w), e_t - 0.125 * w)
-                                fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, ts,
-                                                     m, inv_s2, norm, scratch, st_f, st_fp, p + 1,
-                                                     ct, cf, cfp)
+                                fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ray, ts, kp, scratch, st_f, st_fp,
+                                                     p + 1, ct, cf, cfp)
                                 nev += ne1
                                 st_kind[p + 1] = 0
                                 st_t[p + 1] = ts
@@ -275,7 +300,7 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                             in0 = fcur >= 1.0
                             if lazy:
                                 in0, ne1 = settle(seg, hprim, hrec, sarr, ns, ray, tcur, kp, scratch, rows, cur,
-                                                  mstat, cur, p, False, cache)
+                                                  mstat, (cur, p), False, cache)
                                 nev += ne1
                             nrun = _emit(q0, q0, in0, rk0, rk1, nrun, cap)
                             st_k0[p] = q0 + 1
@@ -327,8 +352,8 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
                         inm, ne1 = split_lazy(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, rows, cur, p, p + 2,
                                               mstat, cache)
                     else:
-                        fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, px, py, 0.0, 0.0, 0.0, 1.0, zm, m,
-                                             inv_s2, norm, scratch, st_f, st_fp, p + 2, ct, cf, cfp)
+                        fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, st_f, st_fp,
+                                             p + 2, ct, cf, cfp)
                         inm = fm >= 1.0
                     nev += ne1
                     st_kind[p + 1] = 1
@@ -352,10 +377,12 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm
 
 
 @kernel
-def trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, z0, h, K, m, inv_s2, norm,
-                       scratch, active, rk0, rk1, cap):
+def trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, col, kp, scratch, active, rk0, rk1, cap):
     """Classify the K centres of one ray by evaluating the field at each,
-    over the z-sorted active window of the bucket list ids[i0:i1]."""
+    over the z-sorted active window of the bucket list ids[i0:i1];
+    ``col = (z0, h, K)``, ``kp = (m, 1/sigma^2, N)``."""
+    z0, h, K = col
+    m, inv_s2, norm = kp
     nrun = 0
     nev = 0
     na = 0
@@ -391,9 +418,9 @@ def trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, z0, h, K, m, inv_s2, nor
 
 
 @kernel
-def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm, kmax,
-                      scratch, hprim, hrec, order, rk0, rk1, cap):
-    """Classify the K centres of one ray with segment tracing (GGPP20).
+def trace_ray_segment(seg, boxes, ids, i0, i1, xy, col, prim, scratch, hprim, hrec, order, rk0, rk1, cap):
+    """Classify the K centres of the ray at ``xy = (px, py)`` with segment
+    tracing (GGPP20); ``col = (z0, h, K)``, ``prim = (n, sigma, N, kmax)``.
 
     From t with value F(t), no crossing lies within |F(t) - 1| / lambda, where
     lambda bounds |F'| on [t, t + s] (sum of per-primitive directional
@@ -401,11 +428,14 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
     When the step would not reach the next unclassified centre, the field is
     evaluated at that centre instead, so centres are classified exactly.
     """
+    px, py = xy
+    z0, h, K = col
+    n, sigma, norm, kmax = prim
     m = n // 2
     inv_s2 = 1.0 / (sigma * sigma)
     zlo = z0 - 0.5 * h
     zhi = z0 + (K - 0.5) * h
-    nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, n, sigma, norm, kmax, zlo, zhi, hprim, hrec, order)
+    nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, (n, sigma, norm, kmax), zlo, zhi, hprim, hrec, order)
     nrun = 0
     nev = 0
     a = 0
@@ -451,9 +481,7 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
 
 
 @parallel_kernel
-def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
-                  x0, y0, pxs, pys, z0, h, K, n, sigma, norm, kmax, strict, cut_support, lazy, max_list,
-                  cap, ray_nrun, run_k0, run_k1, stats, spans, span_tol, xcap, ray_nx, cross_z):
+def trace_buckets(method, buckets, bk, grid, prim, opt, out):
     """Trace every ray of the given buckets in parallel.
 
     Parameters
@@ -462,104 +490,105 @@ def trace_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
         0 interval, 1 sampling, 2 segment tracing.
     buckets : (nb,) int64
         Flat bucket indices (``by * nbx + bx``) to trace.
-    B : int
-        Bucket edge in pixels; W, H image size in pixels.
-    bucket_off, ids : int64
-        CSR bucket lists, each sorted by support zmin.
-    seg : (m, 10) float64
-        Segment table.
-    boxes : (m, 6) float64
-        Support boxes ``xlo ylo zlo xhi yhi zhi`` (ray culling, sampling window).
-    x0, y0, pxs, pys, z0, h : float
-        Centre of voxel (0, 0, 0), pixel sizes and layer height (rows run
-        toward -y).
-    K : int
-        Number of layers.
-    max_list : int
-        Longest bucket list (sizes the per-ray scratch).
-    cap : int
-        Run capacity per bucket.
-    ray_nrun : (nb, B*B) int64, out
-        Runs per ray (row-major inside the bucket).
-    run_k0, run_k1 : (nb, cap) int32, out
-        Runs of all the bucket's rays, ray after ray.
-    stats : (nb, 2) int64, out
-        [status, primitive evaluations] per bucket.
-    lazy : bool
-        Interval method: the lazy walk (docs/math.md §5.5; same voxels,
-        fewer evaluations).
-    spans : bool
-        Interval method: also locate every crossing to ``span_tol`` (mm).
-    xcap : int
-        Crossing capacity per bucket.
-    ray_nx : (nb, B*B) int64, out
-        Crossings per ray.
-    cross_z : (nb, xcap) float64, out
-        Crossing heights (mm) of all the bucket's rays, ray after ray.
+    bk : tuple
+        ``(nbx, B, bucket_off, ids, seg, boxes)``: buckets per row and
+        bucket edge (pixels); the CSR bucket lists (int64), each sorted by
+        support zmin; the segment table ((m, 10) float64) and the support
+        boxes ``xlo ylo zlo xhi yhi zhi`` ((m, 6) float64: ray culling,
+        sampling window).
+    grid : tuple
+        ``(W, H, x0, y0, pxs, pys, z0, h, K)``: image size (pixels); the
+        centre of voxel (0, 0, 0), pixel sizes and layer height (mm; rows
+        run toward -y); the number of layers.
+    prim : tuple
+        ``(n, sigma, N, kmax)``: kernel degree, support factor,
+        normalisation, max |k'|.
+    opt : tuple
+        ``(strict, cut_support, lazy, spans, span_tol)``, interval method:
+        ``lazy`` the lazy walk (docs/math.md §5.5: same voxels, fewer
+        evaluations); ``spans`` also locates every crossing to ``span_tol`` (mm).
+    out : tuple, out
+        ``(ray_nrun, run_k0, run_k1, stats, ray_nx, cross_z)``: runs per ray
+        ((nb, B*B) int64, row-major inside the bucket); the runs of all the
+        bucket's rays, ray after ray ((nb, cap) int32 each); [status,
+        primitive evaluations] per bucket ((nb, 2) int64); crossings per ray
+        ((nb, B*B) int64) and their heights, ray after ray ((nb, xcap)
+        float64, mm).
     """
-    nb = buckets.shape[0]
+    nbx, B, bucket_off, ids, seg, boxes = bk
     # borrowed views (slicer._kernels.borrow): the arguments outlive the launch
-    ids = borrow(ids)
-    seg = borrow(seg)
-    boxes = borrow(boxes)
-    for q in prange(nb):
-        bidx = buckets[q]
-        by = bidx // nbx
-        bx = bidx - by * nbx
-        i0 = bucket_off[bidx]
-        i1 = bucket_off[bidx + 1]
-        nl = max(i1 - i0, 1)
-        own = walk_buffers(nl, MAX_STACK)
-        own_st = (np.empty((MAX_STACK + 1, nl)), np.empty(nl, dtype=np.int64), np.empty(MAX_STACK, dtype=np.int64),
-                  np.empty(MAX_STACK, dtype=np.int64), np.empty(MAX_STACK, dtype=np.int64),
-                  np.empty(nl, dtype=np.int64))
-        scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = borrow(own)
-        st_fh, mstat, st_kind, st_k0, st_k1, active = borrow(own_st)
-        rk0_all = borrow(run_k0[q])
-        rk1_all = borrow(run_k1[q])
-        cz_all = borrow(cross_z[q])
-        used = 0
-        xused = 0
-        nev_tot = 0
-        status = OK
-        for ly in range(B):
-            j = by * B + ly
-            for lx in range(B):
-                i = bx * B + lx
-                lr = ly * B + lx
-                ray_nrun[q, lr] = 0
-                ray_nx[q, lr] = 0
-                if i >= W or j >= H or i1 == i0 or status != OK:
-                    continue
-                px = x0 + i * pxs
-                py = y0 - j * pys
-                rk0 = rk0_all[used:]
-                rk1 = rk1_all[used:]
-                room = cap - used
-                nx = 0
-                if method == 0:
-                    nr, ne, nx = trace_ray_interval(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
-                                                    kmax, strict, cut_support, lazy, scratch, hprim, hrec, order,
-                                                    bps,
-                                                    sarr, st_f, st_fh, st_fp, mstat, st_kind, st_t, st_k0,
-                                                    st_k1, ct, cf, cfp, rk0, rk1, room, spans, span_tol,
-                                                    cz_all[xused:], xcap - xused)
-                elif method == 1:
-                    nr, ne = trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, z0, h, K,
-                                                n // 2, 1.0 / (sigma * sigma), norm, scratch,
-                                                active, rk0, rk1, room)
-                else:
-                    nr, ne = trace_ray_segment(seg, boxes, ids, i0, i1, px, py, z0, h, K, n, sigma, norm,
-                                               kmax, scratch, hprim, hrec, order, rk0, rk1, room)
-                nev_tot += ne
-                if nr < 0:
-                    status = RUNS_FULL
-                    continue
-                ray_nrun[q, lr] = nr
-                used += nr
-                ray_nx[q, lr] = nx
-                xused += nx
-        stats[q, 0] = status
-        stats[q, 1] = nev_tot
-        keep_alive(own)
-        keep_alive(own_st)
+    bk = (nbx, B, bucket_off, borrow(ids), borrow(seg), borrow(boxes))
+    for q in prange(buckets.shape[0]):
+        _trace_bucket(method, q, buckets[q], bk, grid, prim, opt, out)
+
+
+@kernel
+def _trace_bucket(method, q, bidx, bk, grid, prim, opt, out):
+    """Trace the rays of bucket ``bidx`` into row ``q`` of the outputs
+    (arguments as :func:`trace_buckets`), ray after ray with one set of
+    work arrays."""
+    nbx, B, bucket_off, ids, seg, boxes = bk
+    W, H, x0, y0, pxs, pys, z0, h, K = grid
+    n, sigma, norm, kmax = prim
+    strict, cut_support, lazy, spans, span_tol = opt
+    ray_nrun, run_k0, run_k1, stats, ray_nx, cross_z = out
+    cap = run_k0.shape[1]
+    xcap = cross_z.shape[1]
+    by = bidx // nbx
+    bx = bidx - by * nbx
+    i0 = bucket_off[bidx]
+    i1 = bucket_off[bidx + 1]
+    nl = max(i1 - i0, 1)
+    own = walk_buffers(nl, MAX_STACK)
+    own_st = (np.empty((MAX_STACK + 1, nl)), np.empty(nl, dtype=np.int64), np.empty(MAX_STACK, dtype=np.int64),
+              np.empty(MAX_STACK, dtype=np.int64), np.empty(MAX_STACK, dtype=np.int64),
+              np.empty(nl, dtype=np.int64))
+    scratch, hprim, hrec, order, bps, sarr, st_f, st_fp, st_t, ct, cf, cfp = borrow(own)
+    st_fh, mstat, st_kind, st_k0, st_k1, active = borrow(own_st)
+    bufs = (scratch, hprim, hrec, order, bps, sarr, mstat)
+    stack = (st_kind, st_t, st_k0, st_k1)
+    rk0_all = borrow(run_k0[q])
+    rk1_all = borrow(run_k1[q])
+    cz_all = borrow(cross_z[q])
+    used = 0
+    xused = 0
+    nev_tot = 0
+    status = OK
+    for ly in range(B):
+        j = by * B + ly
+        for lx in range(B):
+            i = bx * B + lx
+            lr = ly * B + lx
+            ray_nrun[q, lr] = 0
+            ray_nx[q, lr] = 0
+            if i >= W or j >= H or i1 == i0 or status != OK:
+                continue
+            px = x0 + i * pxs
+            py = y0 - j * pys
+            rk0 = rk0_all[used:]
+            rk1 = rk1_all[used:]
+            room = cap - used
+            nx = 0
+            if method == 0:
+                nr, ne, nx = trace_ray_interval(seg, boxes, ids, i0, i1, (px, py), (z0, h, K), prim, opt, bufs,
+                                                (st_f, st_fh, st_fp), stack, (ct, cf, cfp),
+                                                (rk0, rk1, cz_all[xused:]))
+            elif method == 1:
+                nr, ne = trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, (z0, h, K),
+                                            (n // 2, 1.0 / (sigma * sigma), norm), scratch, active, rk0, rk1,
+                                            room)
+            else:
+                nr, ne = trace_ray_segment(seg, boxes, ids, i0, i1, (px, py), (z0, h, K), prim, scratch, hprim, hrec,
+                                           order, rk0, rk1, room)
+            nev_tot += ne
+            if nr < 0:
+                status = RUNS_FULL
+                continue
+            ray_nrun[q, lr] = nr
+            used += nr
+            ray_nx[q, lr] = nx
+            xused += nx
+    stats[q, 0] = status
+    stats[q, 1] = nev_tot
+    keep_alive(own)
+    keep_alive(own_st)

@@ -515,15 +515,20 @@ def store_ray(runs, xs, cnt, rk0, rk1, room, cz, xroom):
 
 
 @parallel_kernel
-def trace_union_buckets(method, buckets, nbx, B, W, H, bucket_off, ids, seg, boxes,
-                        x0, y0, pxs, pys, z0, h, K, n, sigma, norm, kmax, strict, cut_support, max_list,
-                        cap, ray_nrun, run_k0, run_k1, stats, spans, span_tol, xcap, ray_nx, cross_z):
+def trace_union_buckets(method, buckets, bk, grid, prim, opt, out):
     """Trace every ray of the given buckets with the union blend, in parallel.
 
     Arguments and outputs as :func:`slicer._kernels.trace.trace_buckets`
-    (``method`` 0 interval, 1 sampling; ``cut_support`` has no effect: a
-    strut's pieces always end at its support's ends).
+    (``method`` 0 interval, 1 sampling; ``cut_support`` and ``lazy`` have
+    no effect: a strut's pieces always end at its support's ends).
     """
+    nbx, B, bucket_off, ids, seg, boxes = bk
+    W, H, x0, y0, pxs, pys, z0, h, K = grid
+    n, sigma, norm, kmax = prim
+    strict, cut_support, lazy, spans, span_tol = opt
+    ray_nrun, run_k0, run_k1, stats, ray_nx, cross_z = out
+    cap = run_k0.shape[1]
+    xcap = cross_z.shape[1]
     nb = buckets.shape[0]
     # borrowed views (slicer._kernels.borrow): the arguments outlive the launch
     ids = borrow(ids)
