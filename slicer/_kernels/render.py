@@ -477,7 +477,6 @@ def _render_bucket(q, bidx, bk, screen, prim, opt, shade, out):
     n, sigma, norm, kmax = prim
     tol, strict, bisect, cut_support, lazy, keep_roots = opt
     rgba, count, ray_nroot, roots, stats = out
-    cap = roots.shape[1]
     by = bidx // nbx
     bx = bidx - by * nbx
     i0 = offsets[bidx]

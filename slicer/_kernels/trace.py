@@ -533,7 +533,6 @@ def _trace_bucket(method, q, bidx, bk, grid, prim, opt, out):
     strict, cut_support, lazy, spans, span_tol = opt
     ray_nrun, run_k0, run_k1, stats, ray_nx, cross_z = out
     cap = run_k0.shape[1]
-    xcap = cross_z.shape[1]
     by = bidx // nbx
     bx = bidx - by * nbx
     i0 = bucket_off[bidx]
