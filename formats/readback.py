@@ -46,6 +46,8 @@ from .printers import PRINTERS, Printer, PrintSettings
 IMAGE_SUFFIXES = (".zip", ".sl1", ".sl1s", ".goo", ".nanodlp")
 #: contour outputs (no images)
 CONTOUR_SUFFIXES = (".cli", ".svg", ".3mf")
+#: memory :meth:`ReadStack.cropped` may keep to read a stack once instead of twice
+KEEP_BYTES = 256 * 2**20
 
 
 @dataclass
@@ -94,18 +96,60 @@ class ReadStack:
     def solid_window(self, margin: int = 1) -> tuple[int, int, int, int]:
         """(r0, c0, r1, c1): the box of every layer's non-zero pixels plus
         ``margin`` (a pass over the whole stack); the whole image if empty."""
+        return self.cropped(margin, keep=0)[0]
+
+    def cropped(self, margin: int = 1, keep: int = KEEP_BYTES) -> tuple[tuple[int, int, int, int], Iterator[np.ndarray]]:
+        """The box of every layer's non-zero pixels plus ``margin``, and the layers cut to it.
+
+        One pass reads every layer and keeps the box of its own non-zero
+        pixels while those boxes fit in ``keep`` bytes; the cut layers are then
+        made from them, without reading the file again. Past the budget, the
+        layers are read a second time.
+
+        Parameters
+        ----------
+        margin : int, px
+        keep : int, bytes
+            Memory for the layers' own boxes; 0 always reads twice.
+
+        Returns
+        -------
+        window : (r0, c0, r1, c1)
+            As :meth:`solid_window`; the whole image if every layer is empty.
+        layers : iterator of (r1 - r0, c1 - c0) uint8
+        """
         H, W = self.grid.height, self.grid.width
         r0, c0, r1, c1 = H, W, 0, 0
+        kept, used = [], 0
         for img in self.layers():
             rows = np.flatnonzero(img.any(axis=1))
-            if rows.size == 0:
-                continue
-            cols = np.flatnonzero(img[rows[0]:rows[-1] + 1].any(axis=0))
-            r0, r1 = min(r0, int(rows[0])), max(r1, int(rows[-1]) + 1)
-            c0, c1 = min(c0, int(cols[0])), max(c1, int(cols[-1]) + 1)
+            box = None
+            if rows.size:
+                cols = np.flatnonzero(img[rows[0]:rows[-1] + 1].any(axis=0))
+                box = (int(rows[0]), int(cols[0]), int(rows[-1]) + 1, int(cols[-1]) + 1)
+                r0, c0 = min(r0, box[0]), min(c0, box[1])
+                r1, c1 = max(r1, box[2]), max(c1, box[3])
+            if kept is not None:
+                cut = None if box is None else img[box[0]:box[2], box[1]:box[3]].copy()
+                used += 0 if cut is None else cut.nbytes
+                kept.append((box, cut))
+                if used > keep:
+                    kept = None
         if r1 == 0:
-            return (0, 0, H, W)
-        return (max(r0 - margin, 0), max(c0 - margin, 0), min(r1 + margin, H), min(c1 + margin, W))
+            window = (0, 0, H, W)
+        else:
+            window = (max(r0 - margin, 0), max(c0 - margin, 0), min(r1 + margin, H), min(c1 + margin, W))
+        return window, (self.layers(window) if kept is None else _pasted(kept, window))
+
+
+def _pasted(kept: list, window: tuple[int, int, int, int]) -> Iterator[np.ndarray]:
+    """Layers of ``window`` made from each layer's (box, pixels) of :meth:`ReadStack.cropped`."""
+    r0, c0, r1, c1 = window
+    for box, cut in kept:
+        out = np.zeros((r1 - r0, c1 - c0), np.uint8)
+        if box is not None:
+            out[box[0] - r0:box[2] - r0, box[1] - c0:box[3] - c0] = cut
+        yield out
 
 
 def kind_of(path) -> str | None:
@@ -182,7 +226,7 @@ def _grey(data: bytes, name) -> np.ndarray:
         raise ReadError(f"{name}: not a readable PNG ({exc})") from None
     if img.mode not in ("L", "1", "P"):
         raise ReadError(f"{name}: expected an 8-bit greyscale PNG, got mode {img.mode}")
-    return np.asarray(img.convert("L"))
+    return np.asarray(img if img.mode == "L" else img.convert("L"))
 
 
 def _open_png(p: Path) -> ReadStack:

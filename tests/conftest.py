@@ -36,8 +36,23 @@ settings.register_profile("ci", derandomize=True, **_FUZZ)
 settings.register_profile("fuzz-long", derandomize=False, **_FUZZ)
 
 
+def pytest_sessionfinish(session):
+    """On a pytest-xdist worker: hand its fuzz case counts to the controller."""
+    out = getattr(session.config, "workeroutput", None)
+    if out is not None:
+        out["fuzz_runs"] = [[name, code, n] for name, by in fuzz_helpers.RUNS.items() for code, n in by.items()]
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    """On the pytest-xdist controller: add a finished worker's fuzz case counts."""
+    for name, code, n in getattr(node, "workeroutput", {}).get("fuzz_runs", []):
+        by = fuzz_helpers.RUNS.setdefault(name, {})
+        by[code] = by.get(code, 0) + n
+
+
 def pytest_terminal_summary(terminalreporter):
-    """How many fuzz cases each command ran (tests/test_fuzz_cli.py)."""
+    """How many fuzz cases each command ran (tests/test_fuzz_cli.py), over every worker."""
     runs = fuzz_helpers.RUNS
     if runs:
         total = sum(sum(by.values()) for by in runs.values())

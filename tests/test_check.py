@@ -468,3 +468,33 @@ def test_shell_cut_by_the_plate_is_a_suction_cup(tmp_path, exact_cavity):
     assert t["kind"] == "plate" and t["layers"][0] == 0
     exact = exact_cavity[0][0]
     assert t["volume"] == pytest.approx(exact / 2, rel=0.05)
+
+
+@pytest.mark.parametrize("keep", [0, 150, 10**9])
+def test_cropped_stack_equals_the_cut_of_the_whole_stack(tmp_path, keep):
+    """Read once (every box kept), past the budget at the second box (read
+    again) or twice: the same window and layers as cutting the full images."""
+    from PIL import Image
+
+    from formats.readback import open_stack
+
+    rng = np.random.default_rng(7)
+    H, W, K = 40, 56, 6
+    vol = np.zeros((K, H, W), np.uint8)
+    for k in (1, 2, 4):                                  # layers 0, 3 and 5 stay empty
+        r, c = rng.integers(3, H - 12), rng.integers(5, W - 15)
+        vol[k, r:r + 8, c:c + 10] = rng.integers(1, 256, (8, 10), dtype=np.uint8)      # 80 bytes each
+    files = [f"{k:03d}.png" for k in range(K)]
+    for k, f in enumerate(files):
+        Image.fromarray(vol[k]).save(tmp_path / f)
+    (tmp_path / "slices.json").write_text(json.dumps({
+        "origin": [0.05, 0.05, 0.05], "pixel_size": [0.1, 0.1], "layer_height": 0.1,
+        "width": W, "height": H, "layers": K, "files": files}))
+    rows = np.flatnonzero(vol.any(axis=(0, 2)))
+    cols = np.flatnonzero(vol.any(axis=(0, 1)))
+    want = (rows[0] - 1, cols[0] - 1, rows[-1] + 2, cols[-1] + 2)
+    window, layers = open_stack(tmp_path).cropped(keep=keep)
+    assert window == want
+    got = np.stack(list(layers))
+    assert np.array_equal(got, vol[:, want[0]:want[2], want[1]:want[3]])
+    assert open_stack(tmp_path).solid_window() == want

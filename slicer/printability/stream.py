@@ -131,9 +131,10 @@ def read_layers(path, crop: bool | None = None) -> LayerStack:
     path : path-like
         A PNG folder, ``.zip``, ``.sl1``, ``.sl1s``, ``.goo`` or ``.nanodlp``.
     crop : bool, optional
-        Cut the layers to the box of their solid pixels (plus one pixel), at
-        the cost of one extra pass; default: for images above
-        :data:`CROP_PIXELS` (printer plates).
+        Cut the layers to the box of their solid pixels (plus one pixel):
+        the file is read once when the layers' own boxes fit
+        :data:`formats.readback.KEEP_BYTES`, else twice; default: for images
+        above :data:`CROP_PIXELS` (printer plates).
 
     Raises
     ------
@@ -143,10 +144,10 @@ def read_layers(path, crop: bool | None = None) -> LayerStack:
     g = rs.grid
     if crop is None:
         crop = g.width * g.height > CROP_PIXELS
-    window = rs.solid_window() if crop else (0, 0, g.height, g.width)
+    window, layers = rs.cropped() if crop else ((0, 0, g.height, g.width), rs.layers())
     r0, c0, r1, c1 = window
     grid = g.sub(c0, r0, 0, c1 - c0, r1 - r0, g.layers)
-    return LayerStack(grid, rs.layers(window if crop else None), rs.frame, rs.printer, rs.settings,
+    return LayerStack(grid, layers, rs.frame, rs.printer, rs.settings,
                       window=(r0, c0), full_shape=(g.height, g.width), source=str(path),
                       meta={"format": rs.format, **rs.meta})
 
