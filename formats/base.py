@@ -4,12 +4,10 @@ time, fixed-width strings, single-file binary formats).
 Atomic publication is :mod:`slicer.atomic` (one implementation for every output)."""
 from __future__ import annotations
 
-import collections
 import functools
 import os
 import struct
 import zlib
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +15,7 @@ import numpy as np
 from slicer.atomic import AtomicDir, AtomicFile, check_destination
 from slicer.checks import integer, number
 from slicer.errors import FormatError, OutputError
+from slicer.inorder import map_in_order
 
 from .estimate import LayerMeter
 from .rle import Band, occupied
@@ -226,7 +225,8 @@ def write_ordered(writer: StackWriter, layers, workers: int | None = None) -> in
     With a writer whose :meth:`StackWriter.encode_layer` is thread-safe
     (``parallel_encode``) and ``workers > 1``, layers are encoded on a pool of
     ``workers`` threads (zlib and Pillow release the GIL), at most
-    ``2 * workers`` in flight, while the next layers are produced; payloads
+    ``2 * workers`` in flight, while the next layers are produced
+    (:func:`slicer.inorder.map_in_order`); payloads
     are stored strictly in layer order, so the output is byte-identical to
     a serial run. Memory: ``2 * workers`` layers and their payloads.
 
@@ -242,22 +242,10 @@ def write_ordered(writer: StackWriter, layers, workers: int | None = None) -> in
             writer.write_layer(k, img)
             n += 1
         return n
-    pending = collections.deque()
-    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="encode") as pool:
-        try:
-            for k, img in enumerate(layers):
-                pending.append((k, img, pool.submit(writer.encode_layer, k, img)))
-                if len(pending) >= 2 * workers:
-                    k0, img0, fut = pending.popleft()
-                    writer.store_layer(k0, img0, fut.result())
-                    n += 1
-            while pending:
-                k0, img0, fut = pending.popleft()
-                writer.store_layer(k0, img0, fut.result())
-                n += 1
-        finally:
-            for _, _, fut in pending:
-                fut.cancel()
+    for (k, img), payload in map_in_order(lambda item: writer.encode_layer(*item), enumerate(layers), workers,
+                                          name="encode"):
+        writer.store_layer(k, img, payload)
+        n += 1
     return n
 
 

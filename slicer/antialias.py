@@ -46,6 +46,7 @@ Without anti-aliasing the layers stay exactly 0/255.
 """
 from __future__ import annotations
 
+import itertools
 import sys
 from typing import Iterator
 
@@ -55,7 +56,7 @@ from formats.printers import place
 
 from ._kernels.coverage import ring_coverage
 from .checks import integer, positive_number
-from .contours import check_resolvable, grid_box, iter_contours, plane_contours
+from .contours import check_resolvable, each_plane, grid_box, iter_contours
 from .errors import GridError, OptionError, OutputError
 from .grid import SliceGrid
 from .part_slicing import PartResult, PartStreamedResult
@@ -209,14 +210,13 @@ def iter_exact_coverage(skel, result, aa_z: bool, tol: float) -> Iterator[np.nda
     if isinstance(result, (PartResult, PartStreamedResult)):
         raise OptionError("--aa exact with --aa-z is not available for lattices with meshes: use --aa N --aa-z")
     tol = check_resolvable(skel, tol)
-    box = grid_box(g)
     h = g.layer_height
-    for k in range(g.layers):
-        zk = g.origin[2] + k * h
+    zs = [g.origin[2] + k * h - 0.5 * h + (q + 0.5) * h / Z_PLANES for k in range(g.layers) for q in range(Z_PLANES)]
+    planes = each_plane(skel, zs, tol, grid_box(g))
+    for _ in range(g.layers):
         cov = np.zeros((g.height, g.width))
-        for q in range(Z_PLANES):
-            z = zk - 0.5 * h + (q + 0.5) * h / Z_PLANES
-            cov += polygon_coverage(plane_contours(skel, z, tol, box), g)
+        for _, polys in itertools.islice(planes, Z_PLANES):
+            cov += polygon_coverage(polys, g)
         yield cov / Z_PLANES
 
 

@@ -141,3 +141,17 @@ def test_random_scenes_within_tolerance_of_the_dense_section(seed):
         ours = plane_contours(s, float(z), TOL)
         ref = _check_plane(s, float(z), ours)
         assert len(ours.geoms) == len(ref.geoms)
+
+
+def test_planes_on_threads_give_the_serial_contours_and_counts():
+    """Layer planes computed on 2 threads: the same polygons, bit for bit, and
+    the same work counts as one plane after the other."""
+    s = Skeleton([[-1, 0, -1], [1, 0.2, 1], [0, -1, -1], [0.1, 1, 1], [-1, -1, 0], [1, 1, 0]],
+                 [[0, 1], [2, 3], [4, 5]], [[0.2, 0.1], [0.15, 0.25], [0.2, 0.2]])
+    res = slice_skeleton(s, 0.1)
+    got = {}
+    for workers in (1, 2):
+        st: dict = {}
+        got[workers] = ([(k, z, mp.wkb) for k, z, mp in iter_contours(s, res, TOL, stats=st, workers=workers)], st)
+    assert got[1] == got[2]
+    assert len(got[1][0]) == res.grid.layers and got[1][1]["evaluations"] > 0

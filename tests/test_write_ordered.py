@@ -193,3 +193,47 @@ def test_runs_of_a_band_read_from_its_box_are_the_image_runs(seed):
         v, n = runs(b)
         assert v.tolist() == want_v.tolist() and n.tolist() == want_n.tolist()
     assert np.array_equal(runs(band.where_at_least(1))[1], runs((img >= 1).astype(np.uint8))[1])
+
+
+def test_map_in_order_keeps_order_and_bounds_the_items_in_flight():
+    """Uneven work finishes out of order; results come back in order, at most
+    ``ahead * workers`` submitted ahead of the consumer."""
+    import time
+
+    from slicer.inorder import map_in_order
+
+    lock = threading.Lock()
+    started, consumed = [], []
+
+    def fn(x):
+        with lock:
+            started.append(x)
+            ahead = len(started) - len(consumed)
+        time.sleep(0.002 * ((7 * x) % 5))
+        return x * x, ahead
+
+    out = []
+    for x, (sq, ahead) in map_in_order(fn, range(30), workers=3, ahead=2):
+        out.append((x, sq))
+        consumed.append(x)
+        assert ahead <= 6
+    assert out == [(x, x * x) for x in range(30)]
+
+
+def test_map_in_order_raises_at_the_failing_item_and_stops_early():
+    from slicer.inorder import map_in_order
+
+    calls = []
+
+    def fn(x):
+        calls.append(x)
+        if x == 5:
+            raise ValueError("item 5")
+        return x
+
+    got = []
+    with pytest.raises(ValueError, match="item 5"):
+        for x, r in map_in_order(fn, range(1000), workers=2):
+            got.append(r)
+    assert got == [0, 1, 2, 3, 4]
+    assert len(calls) < 20                 # the rest of the 1000 items were never started

@@ -16,7 +16,10 @@ layers over its height (octet_2x2x2: 113 x 113 px x 113 layers of about
     pairs), as the ``slice`` command reports it.
 ``guaranteed``
     :func:`slicer.contours.plane_contours` on every layer plane, tolerance
-    ``--tol`` mm. Its counts are of field evaluations at points (every
+    ``--tol`` mm, one plane per thread (:func:`slicer.contours.each_plane`,
+    as ``slice`` writes contours); with ``--threads`` above 1 also
+    ``guaranteed_one_plane_at_a_time`` (planes in turn, each plane's kernels
+    on the threads). Its counts are of field evaluations at points (every
     segment that reaches the point), split by stage:
 
     * ``cells``: cell centres of the quadtree (value and gradient);
@@ -41,7 +44,7 @@ from pathlib import Path
 
 from sample_lattices import load_sample
 from slicer._kernels.launch import numba_threads
-from slicer.contours import grid_box, plane_contours
+from slicer.contours import each_plane, grid_box, plane_contours
 from slicer.grid import make_grid
 from slicer.slicing import trace
 
@@ -67,13 +70,14 @@ def run_trace(skel, grid) -> tuple[float, dict]:
     return time.perf_counter() - t0, {"evaluations": int(res.stats["evaluations"])}
 
 
-def run_contours(skel, grid, tol: float) -> tuple[float, dict]:
-    """Seconds and counts of the guaranteed contours of every layer plane of the grid."""
+def run_contours(skel, grid, tol: float, workers: int | None = None) -> tuple[float, dict]:
+    """Seconds and counts of the guaranteed contours of every layer plane of the grid,
+    ``workers`` planes at once (default: one per thread, as ``slice`` does)."""
     st: dict = {}
     box = grid_box(grid)
     t0 = time.perf_counter()
-    for z in grid.centres_z():
-        plane_contours(skel, z, tol, box, st)
+    for _ in each_plane(skel, grid.centres_z(), tol, box, st, workers):
+        pass
     return time.perf_counter() - t0, st
 
 
@@ -91,8 +95,12 @@ def measure(model: str = "octet_2x2x2", pixels: int = 113, layers: int = 113, to
         zmid = float(grid.centres_z()[grid.layers // 2])
         warm = {"trace": lambda: run_trace(skel, grid),
                 "guaranteed": lambda: plane_contours(skel, zmid, tol, grid_box(grid))}
-        for name, job in (("trace", lambda: run_trace(skel, grid)),
-                          ("guaranteed", lambda: run_contours(skel, grid, tol))):
+        jobs = [("trace", lambda: run_trace(skel, grid)),
+                ("guaranteed", lambda: run_contours(skel, grid, tol))]
+        if nthreads > 1:        # the same contours one plane after the other, kernels on the threads
+            warm["guaranteed_one_plane_at_a_time"] = warm["guaranteed"]
+            jobs.append(("guaranteed_one_plane_at_a_time", lambda: run_contours(skel, grid, tol, 1)))
+        for name, job in jobs:
             warm[name]()                            # loads or compiles the kernels
             runs = [job() for _ in range(repeat)]
             counts = runs[0][1]
@@ -116,6 +124,9 @@ def format_table(res: dict) -> str:
              "-" * 58,
              f"{'trace (primitive evals)':<26}{tr['counts']['evaluations']:>14,}{'':>8}{tr['seconds']:>10.3f}",
              f"{'guaranteed (points)':<26}{c['evaluations']:>14,}{'':>8}{gu['seconds']:>10.3f}"]
+    if "guaranteed_one_plane_at_a_time" in res:
+        one = res["guaranteed_one_plane_at_a_time"]
+        lines.append(f"{'  one plane at a time':<26}{one['counts']['evaluations']:>14,}{'':>8}{one['seconds']:>10.3f}")
     for stage, key in STAGES.items():
         v = c.get(key, 0)
         lines.append(f"{'  ' + stage:<26}{v:>14,}{v / max(c['evaluations'], 1):>8.1%}")

@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numba import prange
 
-from .._jit import kernel, parallel_kernel
+from .._jit import inline_kernel, kernel, parallel_kernel
 from .borrow import borrow
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 from .raysupport import kprime_max
@@ -84,36 +84,39 @@ def kernel_curvature_max(n, sigma, norm):
 PIECES = 32
 
 
-@kernel
-def _slope_sup(s, n, sigma, norm, k1):
-    """``sup |k'(s')|`` over ``s' >= s`` (|k'| rises up to d* = sigma/sqrt(n-1), then falls)."""
-    if s >= sigma:
-        return 0.0
+@inline_kernel
+def _ipow(x, k):
+    """``x**k`` for a small integer ``k >= 0`` by repeated products."""
+    out = 1.0
+    for _ in range(k):
+        out *= x
+    return out
+
+
+@inline_kernel
+def _slope_sup(s, w1, n, sigma, norm, k1):
+    """``sup |k'(s')|`` over ``s' >= s`` (``s < sigma``; ``w1 = (1 − s²/σ²)^(n/2−1)``):
+    |k'| rises up to d* = sigma/sqrt(n-1), then falls."""
     if s * s * (n - 1.0) <= sigma * sigma:
         return k1
-    u = s * s / (sigma * sigma)
-    return norm * n * s / (sigma * sigma) * (1.0 - u) ** (n // 2 - 1)
+    return norm * n * s / (sigma * sigma) * w1
 
 
-@kernel
-def _curvature_sup(s, n, sigma, norm, k2):
-    """``sup max(|k''(s')|, |k'(s')/s'|)`` over ``s' >= s`` (see :func:`kernel_curvature_max`)."""
-    if s >= sigma:
-        return 0.0
-    m = n // 2
+@inline_kernel
+def _curvature_sup(u, w1, m, cn, k2):
+    """``sup max(|k''(s')|, |k'(s')/s'|)`` over ``s' >= s`` (``u = s²/σ² < 1``,
+    ``w1 = (1 − u)^(m−1)``, ``cn = N n/σ²``; see :func:`kernel_curvature_max`)."""
     if m < 2:
         return np.inf
-    u = s * s / (sigma * sigma)
-    first = (1.0 - u) ** (m - 1)
     if m == 2:
         second = 2.0
     else:
         v = max(u, 1.0 / (m - 1.0))
-        second = 2.0 * (m - 1.0) * v * (1.0 - v) ** (m - 2)
-    return min(k2, norm * n / (sigma * sigma) * max(first, second))
+        second = 2.0 * (m - 1.0) * v * _ipow(1.0 - v, m - 2)
+    return min(k2, cn * max(w1, second))
 
 
-@kernel
+@inline_kernel
 def _second_sup(ulo, uhi, m):
     """``sup 2(m − 1) u (1 − u)^(m−2)`` over ``u`` in ``[ulo, uhi]`` (within [0, 1];
     it rises up to ``u = 1/(m − 1)`` and then falls; for m = 2 it is 2u)."""
@@ -121,7 +124,7 @@ def _second_sup(ulo, uhi, m):
         return 2.0 * uhi
     peak = 1.0 / (m - 1.0)
     u = peak if ulo <= peak <= uhi else (uhi if uhi < peak else ulo)
-    return 2.0 * (m - 1.0) * u * (1.0 - u) ** (m - 2)
+    return 2.0 * (m - 1.0) * u * _ipow(1.0 - u, m - 2)
 
 
 @kernel
@@ -131,6 +134,8 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
     ``dist(c, piece) − r <= ‖p − q‖ <= max(‖c − q(t0)‖, ‖c − q(t1)‖) + r``,
     ``tau_min <= tau <= tau_max`` and the in-plane part of the unit vector
     ``e = (p − q)/‖p − q‖`` is at most ``pe = (max |P(c − q)| + r)/(dist − r)``.
+    Pieces whose nearest point is beyond the support (``s_lo >= sigma``) add
+    nothing.
 
     Returns ``g`` (in-plane slope), ``h`` (the integrand's Hessian norm),
     ``f`` (value), and the three sums of the split Hessian (docs/math.md §10):
@@ -150,61 +155,65 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
     m = n // 2
     cn = norm * n / (sigma * sigma)
     step = (tb - ta) / PIECES
-    g = 0.0
-    h = 0.0
-    f = 0.0
-    bh = 0.0
-    bl = 0.0
-    a = 0.0
-    ap = 0.0
+    g = h = f = bh = bl = a = ap = 0.0
     # distance of c from the axis line: every p of the disc is within it + r
     rho = math.sqrt(max(wx * wx + wy * wy + wz * wz - wu * wu, 0.0)) * (1.0 + SLACK) + r
+    # squared in-plane and full distances of c from the piece's start (the previous piece's end)
+    q0, Q0 = _end_distances(wx, wy, wz, ux, uy, uz, ta)
     for j in range(PIECES):
         t0 = ta + j * step
         t1 = tb if j == PIECES - 1 else t0 + step
-        tc = min(max(wu, t0), t1)
-        ex = wx - tc * ux
-        ey = wy - tc * uy
-        ez = wz - tc * uz
-        dist = math.sqrt(ex * ex + ey * ey + ez * ez)
         tau_lo = tau0 + d * t0
         tau_hi = tau0 + d * t1
         if not tau_lo > 0.0:
             return np.inf, np.inf, np.inf, np.inf, 0.0, np.inf, np.inf
+        tc = min(max(wu, t0), t1)
+        dist = math.sqrt(_end_distances(wx, wy, wz, ux, uy, uz, tc)[1])
         # farthest point of the piece from c, and its largest in-plane offset
         # (both convex in t: at an end of the piece)
-        x0 = wx - t0 * ux
-        y0 = wy - t0 * uy
-        z0 = wz - t0 * uz
-        x1 = wx - t1 * ux
-        y1 = wy - t1 * uy
-        z1 = wz - t1 * uz
-        pxy = math.sqrt(max(x0 * x0 + y0 * y0, x1 * x1 + y1 * y1))
-        dmax = math.sqrt(max(x0 * x0 + y0 * y0 + z0 * z0, x1 * x1 + y1 * y1 + z1 * z1))
+        q1, Q1 = _end_distances(wx, wy, wz, ux, uy, uz, t1)
+        pxy = math.sqrt(max(q0, q1))
+        dmax = math.sqrt(max(Q0, Q1))
+        q0, Q0 = q1, Q1
         dlo = dist * (1.0 - SLACK) - r
-        pe = 1.0
-        pp = 1.0
+        s_lo = max(dlo, 0.0) / (tau_hi * (1.0 + SLACK))
+        if s_lo >= sigma:
+            continue
+        pe = pp = 1.0
         if dlo > 0.0:
             pe = min(1.0, (pxy * (1.0 + SLACK) + r) / dlo)
             pp = min(1.0, rho / dlo)
-        s_lo = max(dlo, 0.0) / (tau_hi * (1.0 + SLACK))
         s_hi = (dmax * (1.0 + SLACK) + r) / (tau_lo * (1.0 - SLACK))
         ln = t1 - t0
-        g += ln * pe * _slope_sup(s_lo, n, sigma, norm, k1) / (tau_lo * tau_lo)
-        h += ln * _curvature_sup(s_lo, n, sigma, norm, k2) / (tau_lo * tau_lo * tau_lo)
-        if s_lo < sigma:           # k falls with s: k(s') <= k(s_lo)
-            u_lo = s_lo * s_lo / (sigma * sigma)
+        it = 1.0 / tau_lo
+        it3 = it * it * it
+        # k falls with s: k(s') <= k(s_lo); powers of w = 1 - s_lo²/σ²
+        u_lo = s_lo * s_lo / (sigma * sigma)
+        w = 1.0 - u_lo
+        w1 = _ipow(w, m - 1)
+        g += ln * pe * _slope_sup(s_lo, w1, n, sigma, norm, k1) * it * it
+        h += ln * _curvature_sup(u_lo, w1, m, cn, k2) * it3
+        f += ln * norm * w1 * w * it
+        if m >= 2:
             u_hi = min(s_hi * s_hi / (sigma * sigma), 1.0)
-            f += ln * norm * (1.0 - u_lo) ** m / tau_lo
-            if m >= 2:
-                bh += ln * cn * (1.0 - u_lo) ** (m - 1) / (tau_lo * tau_lo * tau_lo)
-                bl += ln * cn * (1.0 - u_hi) ** (m - 1) / (tau_hi * tau_hi * tau_hi)
-                sec = ln * cn * _second_sup(u_lo, u_hi, m) / (tau_lo * tau_lo * tau_lo)
-                a += sec * pe * pe
-                ap += sec * pp * pp
+            bh += ln * cn * w1 * it3
+            bl += ln * cn * _ipow(1.0 - u_hi, m - 1) / (tau_hi * tau_hi * tau_hi)
+            sec = ln * cn * _second_sup(u_lo, u_hi, m) * it3
+            a += sec * pe * pe
+            ap += sec * pp * pp
     if m < 2:
         bh = np.inf
     return g, h, f, bh, bl, a, ap
+
+
+@inline_kernel
+def _end_distances(wx, wy, wz, ux, uy, uz, t):
+    """Squared in-plane and full distances from ``c`` (``w = c − a``) to the axis point at ``t``."""
+    x = wx - t * ux
+    y = wy - t * uy
+    z = wz - t * uz
+    q = x * x + y * y
+    return q, q + z * z
 
 
 @kernel
@@ -221,7 +230,9 @@ def _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
         ez = cz - seg[i, AZ] - t * seg[i, UZ]
         d = math.sqrt(ex * ex + ey * ey + ez * ez)
         s_lo = max(d * (1.0 - SLACK) - r, 0.0) / (tau * (1.0 + SLACK))
-        out += _slope_sup(s_lo, n, sigma, norm, k1) / (tau * tau)
+        if s_lo < sigma:
+            w1 = _ipow(1.0 - s_lo * s_lo / (sigma * sigma), n // 2 - 1)
+            out += _slope_sup(s_lo, w1, n, sigma, norm, k1) / (tau * tau)
     return out
 
 

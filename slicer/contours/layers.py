@@ -36,7 +36,9 @@ import numpy as np
 import shapely
 import shapely.affinity
 
+from .._kernels.launch import numba_threads, serial
 from ..atomic import AtomicFile, check_destination
+from ..inorder import map_in_order
 from ..mesh_slicing import Sections
 from ..part_slicing import PartResult, PartStreamedResult
 from ..parts import ROLES
@@ -127,8 +129,48 @@ def layer_contours(skel: Skeleton, result: SliceResult, k: int, tol: float = 1e-
     return plane_contours(skel, z, tol, grid_box(g))
 
 
+def each_plane(skel: Skeleton, zs, tol: float, box=None, stats: dict | None = None,
+               workers: int | None = None) -> Iterator[tuple[float, object]]:
+    """``(z, plane_contours(skel, z, tol, box))`` for each plane of ``zs``, in order.
+
+    Planes are independent: with ``workers > 1`` they are computed on that
+    many threads (:func:`slicer.inorder.map_in_order`), each plane's kernels
+    on one thread; the contours and ``stats`` are those of a serial run.
+
+    Parameters
+    ----------
+    skel : Skeleton
+    zs : sequence of float, mm
+    tol : float, mm
+    box : (4,) float, optional, mm
+    stats : dict, optional
+        Work counts, summed over the planes.
+    workers : int, optional
+        Default: the Numba threads of the calling thread.
+    """
+    zs = [float(z) for z in zs]
+    if workers is None:
+        with numba_threads(None) as workers:
+            pass
+    workers = min(int(workers), max(len(zs), 1))
+
+    def one(z):
+        st: dict = {}
+        if workers > 1:
+            with serial():
+                return plane_contours(skel, z, tol, box, st), st
+        return plane_contours(skel, z, tol, box, st), st
+
+    for z, (mp, st) in map_in_order(one, zs, workers, name="contours"):
+        if stats is not None:
+            for key, v in st.items():
+                stats[key] = stats.get(key, 0) + v
+        yield z, mp
+
+
 def iter_contours(skel: Skeleton, result: SliceResult, tol: float = 1e-3,
-                  stats: dict | None = None, placement=None) -> Iterator[tuple[int, float, object]]:
+                  stats: dict | None = None, placement=None,
+                  workers: int | None = None) -> Iterator[tuple[int, float, object]]:
     """Contours of every layer, bottom first.
 
     Parameters
@@ -144,6 +186,10 @@ def iter_contours(skel: Skeleton, result: SliceResult, tol: float = 1e-3,
         placed layers (``k_first`` on), numbered from 0, translated by
         :meth:`~formats.printers.Placement.offset` (plate mm, z of plate
         layer centres).
+    workers : int, optional
+        Threads computing layer planes at once (:func:`each_plane`; default:
+        the Numba threads of the calling thread). The result does not depend
+        on it.
 
     Yields
     ------
@@ -153,7 +199,7 @@ def iter_contours(skel: Skeleton, result: SliceResult, tol: float = 1e-3,
     """
     tol = _check_tol(tol)
     if isinstance(result, (PartResult, PartStreamedResult)):     # a lattice with meshes
-        yield from iter_part_contours(result, tol, stats, placement)
+        yield from iter_part_contours(result, tol, stats, placement, workers)
         return
     tol = check_resolvable(skel, tol)
     g = result.grid
@@ -162,9 +208,8 @@ def iter_contours(skel: Skeleton, result: SliceResult, tol: float = 1e-3,
         k_lo, k_hi = placement.k_first, placement.k_first + placement.layers
         dx, dy, _ = placement.offset(g)
     box = grid_box(g)
-    for k in range(k_lo, k_hi):
-        z = g.origin[2] + k * g.layer_height
-        polys = plane_contours(skel, z, tol, box, stats)
+    zs = [g.origin[2] + k * g.layer_height for k in range(k_lo, k_hi)]
+    for k, (z, polys) in zip(range(k_lo, k_hi), each_plane(skel, zs, tol, box, stats, workers)):
         if placement is None:
             yield k, z, polys
         else:
@@ -175,35 +220,41 @@ def _part_sections(part) -> dict:
     return {role: Sections(part.of_role(role)) for role in ROLES if part.of_role(role)}
 
 
-def _part_layer(result, sections: dict, img, k: int, tol: float, stats: dict | None):
-    """Contours of layer ``k`` of a sliced part; ``img`` is the lattice's raster of that layer."""
-    g, lat = result.grid, result.lattice
-    z = g.origin[2] + k * g.layer_height
-    geom = shapely.MultiPolygon()
-    if img is not None:                        # the lattice's own contours, clipped to its own (uncut) grid
-        lz = lat.grid.origin[2] + (k + result.lattice_offset[2]) * lat.grid.layer_height
-        geom = plane_contours(result.part.skeleton, lz, tol, grid_box(lat.grid), stats)
+def _lattice_z(result, k: int) -> float:
+    """Height of part layer ``k`` in the lattice's own grid (its layer centre), mm."""
+    lat = result.lattice
+    return lat.grid.origin[2] + (k + result.lattice_offset[2]) * lat.grid.layer_height
+
+
+def _with_sections(geom, sections: dict, z: float):
+    """The lattice's contours ``geom`` at height ``z`` combined with the meshes'
+    cross-sections: ``((lattice ∩ CI) − CO) ∪ S``."""
     for role, op in (("clip-inside", "intersection"), ("clip-outside", "difference"), ("solid", "union")):
         if role in sections:
             geom = getattr(geom, op)(rings_to_multipolygon(sections[role].rings(z)))
-    return z, _polygons_only(geom)
+    return _polygons_only(geom)
 
 
 def part_layer_contours(result, k: int, tol: float = 1e-3):
     """Contours of layer ``k`` of a sliced part (:class:`slicer.part_slicing.PartResult`):
     a valid MultiPolygon, mm, as :func:`layer_contours` gives for a lattice."""
     tol = _check_tol(tol)
+    k = int(k)
     lat = result.lattice
-    img = layer_mask(lat, int(k) + result.lattice_offset[2]) if lat is not None else None
-    return _part_layer(result, _part_sections(result.part), img, int(k), tol, None)[1]
+    geom = shapely.MultiPolygon()
+    if lat is not None:                        # the lattice's own contours, clipped to its own (uncut) grid
+        layer_mask(lat, k + result.lattice_offset[2])          # refuses a layer out of range
+        geom = plane_contours(result.part.skeleton, _lattice_z(result, k), tol, grid_box(lat.grid))
+    z = result.grid.origin[2] + k * result.grid.layer_height
+    return _with_sections(geom, _part_sections(result.part), z)
 
 
 def iter_part_contours(result, tol: float = 1e-3, stats: dict | None = None,
-                       placement=None) -> Iterator[tuple[int, float, object]]:
+                       placement=None, workers: int | None = None) -> Iterator[tuple[int, float, object]]:
     """Contours of a sliced part (:mod:`slicer.part_slicing`), every layer, bottom first.
 
-    Each layer's lattice contours (from the lattice's own raster, vertices on
-    its surface to ``tol``) are combined with the meshes' exact cross-sections
+    Each layer's lattice contours (the guaranteed contours of the lattice's
+    skeleton, clipped to the lattice's own grid) are combined with the meshes' exact cross-sections
     (:class:`slicer.mesh_slicing.Sections`) by polygon booleans:
     ``((lattice ∩ CI) − CO) ∪ S``. Arguments and conventions as
     :func:`iter_contours`.
@@ -213,7 +264,7 @@ def iter_part_contours(result, tol: float = 1e-3, stats: dict | None = None,
             raise GridError("contours on a printer's plate need the whole job in memory: raise --max-memory")
         k = 0
         for slab in result.iter_slabs():
-            for kk, z, mp in iter_part_contours(slab, tol, stats):
+            for kk, z, mp in iter_part_contours(slab, tol, stats, workers=workers):
                 yield k + kk, z, mp
             k += slab.grid.layers
         return
@@ -224,16 +275,15 @@ def iter_part_contours(result, tol: float = 1e-3, stats: dict | None = None,
         k_lo, k_hi = placement.k_first, placement.k_first + placement.layers
         dx, dy, _ = placement.offset(g)
     lat = result.lattice
-    lat_layers = lat.iter_layers(1) if lat is not None else None
-    for _ in range(result.lattice_offset[2] if lat is not None else 0):
-        next(lat_layers)
-    for k in range(g.layers):
-        img = next(lat_layers) if lat_layers is not None else None
-        if k < k_lo:
-            continue
-        if k >= k_hi:
-            break
-        z, polys = _part_layer(result, sections, img, k, tol, stats)
+    ks = range(k_lo, k_hi)
+    if lat is not None:                        # the lattice's own contours, clipped to its own (uncut) grid
+        geoms = (mp for _, mp in each_plane(result.part.skeleton, [_lattice_z(result, k) for k in ks], tol,
+                                            grid_box(lat.grid), stats, workers))
+    else:
+        geoms = (shapely.MultiPolygon() for _ in ks)
+    for k, geom in zip(ks, geoms):
+        z = g.origin[2] + k * g.layer_height
+        polys = _with_sections(geom, sections, z)
         if placement is None:
             yield k, z, polys
         else:
@@ -300,4 +350,4 @@ def write_contours(skel: Skeleton, result: SliceResult, path, tol: float = 1e-3,
     return {"layers": n, "vertices": nv, "seconds": time.perf_counter() - t0, "path": str(path)}
 
 
-__all__ = ["plane_contours", "grid_box", "layer_contours", "iter_contours", "iter_part_contours", "part_layer_contours", "write_contours"]
+__all__ = ["plane_contours", "each_plane", "grid_box", "layer_contours", "iter_contours", "iter_part_contours", "part_layer_contours", "write_contours"]
