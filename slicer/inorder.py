@@ -9,7 +9,9 @@ of threads.
 from __future__ import annotations
 
 import collections
-from concurrent.futures import ThreadPoolExecutor
+import queue
+import threading
+from concurrent.futures import Future
 from typing import Callable, Iterable, Iterator, TypeVar
 
 T = TypeVar("T")
@@ -27,9 +29,11 @@ def map_in_order(fn: Callable[[T], R], items: Iterable[T], workers: int, ahead: 
     everything runs in the calling thread. ``items`` is read in the calling
     thread only.
 
-    An exception raised by ``fn`` is raised here, at its item; closing the
-    generator early cancels the items not yet started and waits for the
-    running ones.
+    An exception raised by ``fn`` is raised here, at its item. Closing the
+    generator early (an error or a signal in the consumer) cancels the items
+    not yet started and does not wait for the running ones: the workers are
+    daemon threads, so a job interrupted in the middle of a long item exits
+    at once (the item's result is dropped).
 
     Parameters
     ----------
@@ -50,20 +54,48 @@ def map_in_order(fn: Callable[[T], R], items: Iterable[T], workers: int, ahead: 
         for item in items:
             yield item, fn(item)
         return
+    tasks: queue.SimpleQueue = queue.SimpleQueue()
+    threads = [threading.Thread(target=_work, args=(fn, tasks), name=f"{name}-{i}", daemon=True)
+               for i in range(int(workers))]
+    for t in threads:
+        t.start()
     pending: collections.deque = collections.deque()
-    with ThreadPoolExecutor(max_workers=int(workers), thread_name_prefix=name) as pool:
+    finished = False
+    try:
+        for item in items:
+            fut: Future = Future()
+            tasks.put((item, fut))
+            pending.append((item, fut))
+            if len(pending) >= ahead * workers:
+                item0, fut0 = pending.popleft()
+                yield item0, fut0.result()
+        while pending:
+            item0, fut0 = pending.popleft()
+            yield item0, fut0.result()
+        finished = True
+    finally:
+        for _, fut in pending:
+            fut.cancel()
+        for _ in threads:
+            tasks.put(None)
+        if finished:
+            for t in threads:
+                t.join()
+
+
+def _work(fn: Callable, tasks: queue.SimpleQueue) -> None:
+    """A worker of :func:`map_in_order`: run ``fn`` on queued items until ``None``."""
+    while True:
+        job = tasks.get()
+        if job is None:
+            return
+        item, fut = job
+        if not fut.set_running_or_notify_cancel():
+            continue
         try:
-            for item in items:
-                pending.append((item, pool.submit(fn, item)))
-                if len(pending) >= ahead * workers:
-                    item0, fut = pending.popleft()
-                    yield item0, fut.result()
-            while pending:
-                item0, fut = pending.popleft()
-                yield item0, fut.result()
-        finally:
-            for _, fut in pending:
-                fut.cancel()
+            fut.set_result(fn(item))
+        except BaseException as exc:             # handed to the consumer, raised at its item
+            fut.set_exception(exc)
 
 
 __all__ = ["map_in_order"]

@@ -237,3 +237,29 @@ def test_map_in_order_raises_at_the_failing_item_and_stops_early():
             got.append(r)
     assert got == [0, 1, 2, 3, 4]
     assert len(calls) < 20                 # the rest of the 1000 items were never started
+
+
+def test_map_in_order_does_not_wait_for_a_long_item_when_the_consumer_stops():
+    """An error (or a signal) in the consumer while a long item runs: the generator
+    closes at once, without waiting for that item, and nothing runs after it."""
+    import time
+
+    from slicer.inorder import map_in_order
+
+    release = threading.Event()
+    started = []
+
+    def fn(x):
+        started.append(x)
+        if x == 1:
+            release.wait(30)               # a long item: minutes of contours at a fine tolerance
+        return x
+
+    t0 = time.perf_counter()
+    with pytest.raises(KeyError):
+        for x, _ in map_in_order(fn, range(100), workers=2, ahead=1):
+            raise KeyError(x)              # the consumer fails on the first result
+    assert time.perf_counter() - t0 < 5
+    release.set()
+    time.sleep(0.2)
+    assert len(started) <= 3               # items queued behind the failure were cancelled
