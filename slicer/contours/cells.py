@@ -134,7 +134,7 @@ class _Bounds:
                                           sk.degree, sk.sigma, sk.normalisation)
         return disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
 
-    def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, inherited=None):
+    def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, inherited=None, values=None):
         """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
         a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none),
         lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over it, (c, 2) float64,
@@ -144,14 +144,19 @@ class _Bounds:
         ``G``, ``H`` and ``U`` over the disc.
 
         ``inherited``: ``(G, H, U)`` of discs that contain these (a parent's
-        disc holds its children's), used as they are instead of new bounds."""
+        disc holds its children's), used as they are instead of new bounds.
+        ``values``: the field and in-plane gradient at the centres, ``(c,)`` and
+        ``(c, 2)``, when already known (no evaluation)."""
         G, H, U = self.disc_bounds(cx, cy, r) if inherited is None else inherited
         # the bound of F over the disc stays below 1 (or no support reaches it): outside, no evaluation
         far = U * (1.0 + FIELD_SLACK) < 1.0
         reach = np.flatnonzero(~far)
         f = np.zeros(cx.size)
         g = np.zeros((cx.size, 3))
-        if reach.size:
+        if values is not None:
+            f[:] = values[0]
+            g[:, :2] = values[1]
+        elif reach.size:
             p = np.column_stack([cx[reach], cy[reach], np.full(reach.size, self.z)])
             f[reach], g[reach] = _field(self.skel, p, gradient=True)
             self.evaluations += reach.size
@@ -256,8 +261,19 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
             # small cells: the parent's bounds hold over the child's disc and are
             # nearly as tight there; new ones would cost more than they save
             inherited = tuple(a[rest] for a in parent[1][2:])
-        st_r, kappa[rest], slope[rest], taylor = bounds.classify(cx[rest], cy[rest], np.full(rest.size, rr),
-                                                                 inherited)
+        # larger cells: first with the parent's bounds; those left unresolved get their own
+        # (the centre's value and gradient already known), so split cells carry their own
+        st_r, kap_r, slo_r, taylor = bounds.classify(cx[rest], cy[rest], np.full(rest.size, rr),
+                                                     inherited if inherited is not None or parent is None
+                                                     else tuple(a[rest] for a in parent[1][2:]))
+        if inherited is None and parent is not None:
+            again = np.flatnonzero(st_r < 0)
+            if again.size:
+                st2, kap2, slo2, tay2 = bounds.classify(cx[rest[again]], cy[rest[again]], np.full(again.size, rr),
+                                                        None, values=(taylor[0][again], taylor[1][again]))
+                st_r[again], kap_r[again], slo_r[again] = st2, kap2, slo2
+                taylor = tuple(_put(a, again, b) for a, b in zip(taylor, tay2))
+        kappa[rest], slope[rest] = kap_r, slo_r
         state[rest] = st_r
         f[rest] = taylor[0]
         cells += ix.size
@@ -285,6 +301,13 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
     ky = np.concatenate([k[1] for k in known] + [np.zeros(0, np.int64)])
     kf = np.concatenate([k[2] for k in known] + [np.zeros(0)])
     return X0, Y0, X0 + size, Y0 + size, state, kappa, slope, cells, (kx, ky, kf)
+
+
+def _put(a: np.ndarray, rows: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A copy of ``a`` with ``a[rows] = b``."""
+    out = a.copy()
+    out[rows] = b
+    return out
 
 
 def _known_values(px, py, kx, ky, kf, ymax: int) -> np.ndarray:
