@@ -1,10 +1,12 @@
-"""Bounds of the field over discs of a layer plane (slicer._kernels.cellbounds, docs/math.md §10).
+"""Bounds of the field over discs of a layer plane (slicer._kernels.cellbounds
+and slicer._kernels.ridgebounds, docs/math.md §10).
 
 Property: on random segments (tapered or not, short or long, any direction,
 alone or meeting others at a node) and random discs of a layer plane near
 them, the field sampled on the disc satisfies ``|∇_xy F| <= G``,
 ``‖∇²_xy F‖ <= H`` (the in-plane Hessian, by central differences of the
-closed-form gradient) and ``F <= U``.
+closed-form gradient) and ``F <= U``, and in the frame ``(u, v)`` of the
+ridge bounds ``F_vv <= FVV``, ``F_uu <= FUU`` and ``|F_uv| <= FUV``.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from slicer import Skeleton
 from slicer._kernels.binning import bin_boxes
 from slicer._kernels.cellbounds import disc_bounds, disc_bounds_binned
 from slicer._kernels.points import field_at_points
+from slicer._kernels.ridgebounds import ridge_bounds, ridge_bounds_binned
 from slicer.contours.cells import _bin_segments, _root_grid, plane_segments
 from slicer.field import evaluate, point_grid, segment_table, support_boxes
 
@@ -29,7 +32,8 @@ FD_MARGIN = 1e-5
 
 
 def _in_plane(skel: Skeleton, pts: np.ndarray):
-    """In-plane gradient norm, in-plane Hessian norm and field at points, (k,) each."""
+    """In-plane gradient norm, in-plane Hessian norm and field at points, (k,) each,
+    and the in-plane Hessians, (k, 2, 2)."""
     f, g = evaluate(skel, pts, gradient=True)
     hess = np.zeros((pts.shape[0], 2, 2))
     for j in range(2):
@@ -40,7 +44,7 @@ def _in_plane(skel: Skeleton, pts: np.ndarray):
         hess[:, :, j] = (gp[:, :2] - gm[:, :2]) / (2 * FD_STEP)
     hess = 0.5 * (hess + hess.transpose(0, 2, 1))
     eig = np.linalg.eigvalsh(hess)
-    return np.hypot(g[:, 0], g[:, 1]), np.abs(eig).max(axis=1), f
+    return np.hypot(g[:, 0], g[:, 1]), np.abs(eig).max(axis=1), f, hess
 
 
 def _disc_points(c: np.ndarray, r: float, rng: np.random.Generator, k: int = 48) -> np.ndarray:
@@ -58,11 +62,26 @@ def _check(skel: Skeleton, c: np.ndarray, r: float, seed: int):
     G, H, U = disc_bounds(table, ids, np.array([c[0]]), np.array([c[1]]), float(c[2]), np.array([r]),
                           skel.degree, skel.sigma, skel.normalisation)
     pts = _disc_points(c, r, np.random.default_rng(seed))
-    gn, hn, f = _in_plane(skel, pts)
+    gn, hn, f, hess = _in_plane(skel, pts)
     assert gn.max() <= G[0] * (1 + 1e-9) + FD_MARGIN, (gn.max(), G[0])
     assert hn.max() <= H[0] + FD_MARGIN * (1.0 + H[0]), (hn.max(), H[0])
     assert f.max() <= U[0] * (1 + 1e-9), (f.max(), U[0])
+    _check_frame(skel, table, ids, c, r, hess)
     return G[0], H[0], gn.max(), hn.max()
+
+
+def _check_frame(skel, table, ids, c, r, hess):
+    """The ridge bounds over the disc against the sampled Hessians, in their frame."""
+    ux, uy, fvv, fuu, fuv = (a[0] for a in ridge_bounds(table, ids, np.array([c[0]]), np.array([c[1]]), float(c[2]),
+                                                         np.array([r]), skel.degree, skel.sigma, skel.normalisation))
+    assert abs(math.hypot(ux, uy) - 1.0) < 1e-12
+    u, v = np.array([ux, uy]), np.array([-uy, ux])
+    dvv = np.einsum("i,kij,j->k", v, hess, v).max()
+    duu = np.einsum("i,kij,j->k", u, hess, u).max()
+    duv = np.abs(np.einsum("i,kij,j->k", u, hess, v)).max()
+    assert dvv <= fvv + FD_MARGIN * (1.0 + abs(fvv)), (dvv, fvv)
+    assert duu <= fuu + FD_MARGIN * (1.0 + abs(fuu)), (duu, fuu)
+    assert duv <= fuv + FD_MARGIN * (1.0 + fuv), (duv, fuv)
 
 
 unit = st.floats(-1.0, 1.0)
@@ -126,6 +145,27 @@ def test_bounds_are_close_on_a_strut_surface():
     assert H <= 2.0 * 1.556
 
 
+def test_ridge_bounds_see_the_crest_of_a_strut_lying_in_the_plane():
+    """The plane through the top of a horizontal strut (radius 0.4): across the strut
+    the field is concave (F_vv = −14.58 on the crest), along it constant away from
+    its ends. The frame follows the strut, the bound of F_vv stays negative over
+    discs up to 0.1 mm and those of F_uu and |F_uv| are rounding-sized (the
+    derivatives along an untapered axis are end terms, zero out of their reach);
+    near an end they are not."""
+    s = Skeleton([[-3, 0, 0], [3, 0, 0]], [[0, 1]], [[0.4, 0.4]])
+    table = point_grid(s)[0]
+    ids = np.array([0])
+    for r, most in ((0.001, -13.0), (0.01, -12.5), (0.1, -3.0)):
+        ux, uy, fvv, fuu, fuv = (a[0] for a in ridge_bounds(table, ids, np.array([0.3]), np.array([0.01]), 0.4,
+                                                             np.array([r]), s.degree, s.sigma, s.normalisation))
+        assert abs(ux) == 1.0 and uy == 0.0
+        assert -14.6 < fvv < most, (r, fvv)
+        assert 0.0 <= fuu < 1e-6 and 0.0 <= fuv < 1e-6, (r, fuu, fuv)
+    _, _, fvv, fuu, fuv = ridge_bounds(table, ids, np.array([2.9]), np.array([0.0]), 0.4, np.array([0.01]),
+                                       s.degree, s.sigma, s.normalisation)
+    assert fuu[0] > 0.1 and fuv[0] > 0.1
+
+
 def test_binned_bounds_are_the_bounds_over_every_segment_of_the_plane():
     """Each disc looks only at the segments binned near its centre, and gets the
     bounds of all the plane's segments to the bit (a segment left out could only
@@ -150,6 +190,11 @@ def test_binned_bounds_are_the_bounds_over_every_segment_of_the_plane():
         for a, b in zip(want, got):
             assert np.array_equal(a, b)
         assert (want[0] > 0).any() and (want[0] == 0).any()   # discs both near and far from the struts
+        want = ridge_bounds(table, ids, cx, cy, *args)
+        got = ridge_bounds_binned(table, offsets, lists, bx0, by0, side, bnx, bny, cx, cy, *args)
+        for a, b in zip(want, got):
+            assert np.array_equal(a, b)
+        assert len(set(zip(want[0].round(6), want[1].round(6)))) > 2        # frames of several struts
 
 
 def test_the_field_does_not_depend_on_the_point_grid():

@@ -10,6 +10,7 @@ import pytest
 
 from slicer import Skeleton
 from slicer.contours import check_resolvable, iter_contours, mask_rings, plane_contours
+from slicer.contours.cells import _root_grid, plane_segments
 from slicer.errors import OptionError
 from slicer.field import evaluate
 from slicer.slicing import slice_skeleton
@@ -85,6 +86,32 @@ def test_thin_features_between_pixel_centres_appear(name, zs):
         ours = plane_contours(s, z, TOL)
         ref = _check_plane(s, z, ours)
         assert len(ours.geoms) == len(ref.geoms)
+
+
+#: four struts lying in the plane z = 0 meet a vertical one at a node
+CROSS = Skeleton([[0, 0, 0], [2, 0, 0], [-2, 0, 0], [0, 2, 0], [0, -2, 0], [0, 0, 1.5]],
+                 [[0, 1], [0, 2], [0, 3], [0, 4], [0, 5]], [[0.3, 0.3]] * 4 + [[0.2, 0.2]])
+
+
+@pytest.mark.parametrize("name, z, crest", [("grazing", 0.3, 2.8), ("cross", 0.3, 3.2), ("cross", -0.3, 3.2)])
+def test_planes_tangent_to_struts_lying_in_them_settle_on_the_crests(name, z, crest):
+    """A plane through the top (or bottom) of struts lying in it touches them along
+    lines (``crest`` mm of them away from the struts' ends), where the field's crest
+    is within rounding of 1 and its in-plane gradient vanishes. Crest cells settle
+    those (docs/math.md §10.1): the finest leaves are a tenth of the one per finest
+    side that the crests alone would take when split down to them. The section is
+    the dense one's, except for tails along the crests narrower than its grid."""
+    s = CROSS if name == "cross" else SCENES[name]
+    st: dict = {}
+    ours = plane_contours(s, z, TOL, stats=st)
+    _, _, s0, _, _, levels = _root_grid(s, plane_segments(s, z), TOL, None)
+    h = s0 / 2 ** levels
+    assert st["thin_leaves"] > 0
+    assert st["small_leaves"] < 0.1 * crest / h, (st["small_leaves"], crest / h)
+    ref = dense_section(s, z, _support_box(s, z), STEP)
+    assert ours.is_valid
+    assert ref.difference(ours.buffer(TOL + SAMPLING)).is_empty
+    assert ours.difference(ref.buffer(TOL + SAMPLING)).buffer(-STEP / 2).is_empty
 
 
 def test_the_raster_contours_miss_what_the_guaranteed_ones_keep():

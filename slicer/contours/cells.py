@@ -4,7 +4,9 @@ The plane ``z`` is covered by square root cells, which are split (quadtree)
 until each leaf is *settled* -- proven all inside or all outside -- or
 *simple* -- the field is proven strictly monotone in x and in y over it, so
 the section's boundary crosses it as at most one arc, whose ends the corner
-signs give -- or the leaf's diagonal is at most the tolerance. The proofs use
+signs give -- or *thin* -- on a crest of the field, its section provably
+narrower than a quarter of the finest leaves (:meth:`_Bounds.ridge`,
+docs/math.md §10.1) -- or the leaf's diagonal is at most the tolerance. The proofs use
 the field and its gradient at the cell's centre ``c`` and sound bounds over
 the disc of radius ``r`` (half the diagonal) around it
 (:mod:`slicer._kernels.cellbounds`, docs/math.md §10): with ``G`` a bound of
@@ -21,8 +23,9 @@ edge* shared by exactly two leaves, and each exit from the inside is joined to
 the next entry, as in marching squares; elementary edges get their vertex by
 the bracketed root solve (:func:`slicer.contours.roots.solve_crossings`).
 No part of the section wider than the tolerance can hide inside a leaf:
-settled leaves hold none of the boundary, simple leaves hold one arc, and the
-others are smaller than the tolerance.
+settled leaves hold none of the boundary, simple leaves hold one arc, thin
+leaves nothing wider than a quarter of the finest leaves, and the others are
+smaller than the tolerance.
 
 Everything is a function of the skeleton, ``z``, the domain and ``tol``: the
 result does not depend on pixel size or thread count.
@@ -36,6 +39,7 @@ import numpy as np
 from .._kernels.binning import bin_boxes
 from .._kernels.cellbounds import SLACK, disc_bounds, disc_bounds_binned
 from .._kernels.contours import chain_rings
+from .._kernels.ridgebounds import ridge_bounds, ridge_bounds_binned
 from ..errors import OptionError
 from ..field import point_grid, support_boxes
 from ..ordering import stable_argsort
@@ -54,11 +58,15 @@ ROOT_CELL_RADII = 0.5
 #: at most SAGITTA * l**2 * kappa (1/8 for small angles, 0.134 at l kappa = 1)
 SAGITTA = 0.145
 
+#: widest section a THIN cell may hold, as a fraction of the finest leaves' side
+#: (the corners of those see most of what is wider than a quarter of their side)
+THIN_FRACTION = 0.25
+
 #: smallest tolerance as a multiple of the float64 spacing at the scene's coordinates
 TOL_ULPS = 1024
 
 # leaf states
-OUT, IN, SIMPLE, ONEDIR, SMALL = 0, 1, 2, 3, 4
+OUT, IN, SIMPLE, ONEDIR, SMALL, THIN = 0, 1, 2, 3, 4, 5
 
 
 def check_resolvable(skel: Skeleton, tol: float, name: str = "--contour-tol") -> float:
@@ -116,23 +124,108 @@ def _bin_segments(skel: Skeleton, ids: np.ndarray, x0: float, y0: float, side: f
 class _Bounds:
     """Field, gradient and the disc bounds at cell centres of one plane."""
 
-    def __init__(self, skel: Skeleton, z: float, ids: np.ndarray, tol: float, root=None):
+    def __init__(self, skel: Skeleton, z: float, ids: np.ndarray, tol: float, root=None, thin: float | None = None):
         self.skel, self.z, self.ids, self.tol = skel, float(z), ids, float(tol)
+        #: widest section a THIN cell may hold, mm
+        self.thin = float(tol if thin is None else thin)
         self.table = point_grid(skel)[0]
         self.evaluations = 0
         self.bins = None if root is None else _bin_segments(skel, ids, *root)
+
+    def _binned(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
+        """The bins' arguments when every disc fits them, else None."""
+        if self.bins is None:
+            return None
+        x0, y0, side, nx, ny, rmax, offsets, lists = self.bins
+        inside = ((cx >= x0) & (cx < x0 + nx * side) & (cy >= y0) & (cy < y0 + ny * side)).all()
+        if inside and (r.size == 0 or r.max() <= rmax):
+            return offsets, lists, x0, y0, side, nx, ny
+        return None
 
     def disc_bounds(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
         """G, H, U of :func:`slicer._kernels.cellbounds.disc_bounds` over the discs,
         from the segments binned near each centre when the discs fit the bins."""
         sk = self.skel
-        if self.bins is not None:
-            x0, y0, side, nx, ny, rmax, offsets, lists = self.bins
-            inside = ((cx >= x0) & (cx < x0 + nx * side) & (cy >= y0) & (cy < y0 + ny * side)).all()
-            if inside and (r.size == 0 or r.max() <= rmax):
-                return disc_bounds_binned(self.table, offsets, lists, x0, y0, side, nx, ny, cx, cy, self.z, r,
-                                          sk.degree, sk.sigma, sk.normalisation)
+        binned = self._binned(cx, cy, r)
+        if binned is not None:
+            return disc_bounds_binned(self.table, *binned, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
         return disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
+
+    def ridge_bounds(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
+        """Frame and signed bounds of :func:`slicer._kernels.ridgebounds.ridge_bounds`
+        over the discs, binned like :meth:`disc_bounds`."""
+        sk = self.skel
+        binned = self._binned(cx, cy, r)
+        if binned is not None:
+            return ridge_bounds_binned(self.table, *binned, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
+        return ridge_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
+
+    def ridge(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, taylor) -> np.ndarray:
+        """OUT, THIN or -1 (unresolved) of cells on a crest of the field (docs/math.md §10.1).
+
+        With ``u``, ``v`` the frame of :meth:`ridge_bounds` and, over the disc,
+        ``F_vv <= −c < 0``, ``F_uu <= B_uu``, ``|F_uv| <= B_uv``: from any point
+        ``p*`` of the disc, ``F <= M = F(p*) + r |F_u(p*)| + r² max(B_uu, 0)/2 +
+        (|F_v(p*)| + r B_uv)²/(2c)`` over the disc (Taylor's remainder along
+        ``p − p*``, maximised over the offset along v). ``p*`` is the centre and
+        two steps towards the crest along v (Newton with ``c``, then secant), the
+        least M kept. ``M < 1``: outside. Otherwise F is strictly concave along
+        every line parallel to v, so each meets the section in one interval, no
+        longer than ``sqrt(8 (M − 1)/c)`` (its crest is at least ``c l²/8`` above
+        its ends): at most ``self.thin`` (``THIN_FRACTION`` of the finest leaves'
+        side) makes the cell THIN, a leaf walked like the finest ones: what it
+        holds is narrower than what their corners reliably see.
+
+        Parameters
+        ----------
+        cx, cy, r : (c,) float64, mm
+        taylor : tuple
+            ``(f, grad, G, H, U)`` at the centres (:meth:`classify`).
+        """
+        f0, g0, G = taylor[0], taylor[1], taylor[2]
+        ux, uy, vv, uu, uv = self.ridge_bounds(cx, cy, r)
+        state = np.full(cx.size, -1, np.int8)
+        with np.errstate(invalid="ignore"):
+            ok = np.flatnonzero(-vv > 0.0)
+        if ok.size == 0:
+            return state
+        cx, cy, r, f0, g0, G = cx[ok], cy[ok], r[ok], f0[ok], g0[ok], G[ok]
+        ux, uy, curv, uu, uv = ux[ok], uy[ok], -vv[ok], uu[ok], uv[ok]
+        fixed = 0.5 * np.maximum(uu, 0.0) * r * r
+
+        def crest_bound(f, g):
+            gn = np.hypot(g[:, 0], g[:, 1])
+            eg = FIELD_SLACK * (gn + G)
+            gu = np.abs(g[:, 0] * ux + g[:, 1] * uy) + eg
+            gv = np.abs(g[:, 1] * ux - g[:, 0] * uy) + eg
+            return f + FIELD_SLACK * (1.0 + np.abs(f)) + r * gu + fixed + (gv + r * uv) ** 2 / (2.0 * curv)
+
+        best = crest_bound(f0, g0)
+        # towards the crest along v: a Newton step with the bound c, then a secant step
+        gv0 = g0[:, 1] * ux - g0[:, 0] * uy
+        lim = 0.999 * r
+        t1 = np.clip(gv0 / curv, -lim, lim)
+        f1, g1 = self._at(cx - t1 * uy, cy + t1 * ux)
+        gv1 = g1[:, 1] * ux - g1[:, 0] * uy
+        best = np.minimum(best, crest_bound(f1, g1))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            k = (gv0 - gv1) / t1
+        k = np.where(np.isfinite(k) & (k > 0.0), k, curv)
+        t2 = np.clip(t1 + gv1 / k, -lim, lim)
+        f2, g2 = self._at(cx - t2 * uy, cy + t2 * ux)
+        best = np.minimum(best, crest_bound(f2, g2))
+        with np.errstate(invalid="ignore"):
+            verdict = np.where(best < 1.0, OUT, np.where(8.0 * (best - 1.0) <= curv * self.thin ** 2, THIN, -1))
+        state[ok] = verdict
+        return state
+
+    def _at(self, x: np.ndarray, y: np.ndarray):
+        """Field and in-plane gradient at points of the plane, (k,) and (k, 2)."""
+        if x.size == 0:
+            return np.zeros(0), np.zeros((0, 2))
+        f, g = _field(self.skel, np.column_stack([x, y, np.full(x.size, self.z)]), gradient=True)
+        self.evaluations += x.size
+        return f, g[:, :2]
 
     def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, inherited=None, values=None):
         """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
@@ -273,6 +366,8 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
                                                         None, values=(taylor[0][again], taylor[1][again]))
                 st_r[again], kap_r[again], slo_r[again] = st2, kap2, slo2
                 taylor = tuple(_put(a, again, b) for a, b in zip(taylor, tay2))
+        if lev < levels:
+            st_r = _crests(bounds, cx[rest], cy[rest], rr, st_r, taylor)
         kappa[rest], slope[rest] = kap_r, slo_r
         state[rest] = st_r
         f[rest] = taylor[0]
@@ -301,6 +396,21 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
     ky = np.concatenate([k[1] for k in known] + [np.zeros(0, np.int64)])
     kf = np.concatenate([k[2] for k in known] + [np.zeros(0)])
     return X0, Y0, X0 + size, Y0 + size, state, kappa, slope, cells, (kx, ky, kf)
+
+
+def _crests(bounds: _Bounds, cx: np.ndarray, cy: np.ndarray, rr: float, state: np.ndarray, taylor) -> np.ndarray:
+    """``state`` with the unresolved cells that may hold a critical point of the
+    field in the plane (``‖∇_xy F(c)‖ <= r H``: the gradient may vanish in them)
+    tried as crest cells (:meth:`_Bounds.ridge`)."""
+    f, g, G, H = taylor[:4]
+    gn = np.hypot(g[:, 0], g[:, 1])
+    with np.errstate(invalid="ignore"):
+        try_ = np.flatnonzero((state < 0) & (gn <= rr * H * (1.0 + SLACK) + FIELD_SLACK * (gn + G)))
+    if try_.size == 0:
+        return state
+    out = state.copy()
+    out[try_] = bounds.ridge(cx[try_], cy[try_], np.full(try_.size, rr), tuple(a[try_] for a in taylor))
+    return out
 
 
 def _put(a: np.ndarray, rows: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -418,7 +528,8 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
         their split by stage: ``cell_evaluations`` (cell centres, with the
         gradient), ``corner_evaluations`` (leaf corners on the walks) and
         ``root_evaluations`` (root solves of the crossings); ``cells``,
-        ``leaves``, ``small_leaves``, ``vertices``, ``unbracketed``.
+        ``leaves``, ``small_leaves`` (of the finest level), ``thin_leaves``
+        (crest cells walked like those), ``vertices``, ``unbracketed``.
     root_cell : float, optional, mm
         Side of the root cells (default: ``ROOT_CELL_RADII`` times the median
         radius of the plane's struts).
@@ -436,7 +547,7 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
         Outer rings counter-clockwise, holes clockwise (not yet refined).
     """
     st = {"evaluations": 0, "cell_evaluations": 0, "corner_evaluations": 0, "root_evaluations": 0,
-          "cells": 0, "leaves": 0, "small_leaves": 0, "vertices": 0, "unbracketed": 0}
+          "cells": 0, "leaves": 0, "small_leaves": 0, "thin_leaves": 0, "vertices": 0, "unbracketed": 0}
     rings = []
     ids = plane_segments(skel, z)
     if ids.size:
@@ -503,11 +614,12 @@ def _pair_crossings(leaf, point, inside, npts: int):
 def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray]:
     """:func:`guaranteed_rings` for a plane that some supports meet."""
     x0, y0, s0, nx, ny, levels = _root_grid(skel, ids, tol, root_cell)
-    bounds = _Bounds(skel, z, ids, tol, (x0, y0, s0, nx, ny))
+    bounds = _Bounds(skel, z, ids, tol, (x0, y0, s0, nx, ny), thin=THIN_FRACTION * s0 / 2.0 ** levels)
     X0, Y0, X1, Y1, state, kappa, slope, cells, known = _quadtree(bounds, x0, y0, s0, nx, ny, levels)
     st["cells"] += cells
     st["leaves"] += X0.size
     st["small_leaves"] += int((state == SMALL).sum())
+    st["thin_leaves"] += int((state == THIN).sum())
     st["evaluations"] += bounds.evaluations
     st["cell_evaluations"] += bounds.evaluations
     act = np.flatnonzero(state >= SIMPLE)

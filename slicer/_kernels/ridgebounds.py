@@ -1,0 +1,233 @@
+"""Signed second-derivative bounds of the field over a disc of a layer plane, in
+a frame along and across a strut (docs/math.md §10.1).
+
+Where a layer plane touches the top (or bottom) of a strut lying in it, the
+field has a ridge in the plane: strictly concave across the strut, nearly
+constant along it, its crest within rounding of 1. The norm bounds of
+:mod:`slicer._kernels.cellbounds` settle no cell there. In the frame of the
+strut nearest the disc's centre -- ``u`` its in-plane direction, ``v`` the
+in-plane normal -- this module bounds, over the disc, ``F_vv`` from above
+(negative on a crest), ``F_uu`` from above and ``|F_uv|``: the integrand's
+Hessian is ``α e eᵀ − β I`` (``α, β >= 0``), so ``wᵀ(α e eᵀ − β I)w' =
+α (e·w)(e·w') − β w·w'`` with ``|e·w|`` bounded on each piece of the axis
+like the in-plane part of ``e`` in :func:`slicer._kernels.cellbounds._piece_bounds`;
+for an untapered segment the derivatives along its own axis are end terms
+(``∂f/∂a = ψ(p − a0) − ψ(p − a1)``), zero away from its ends.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import prange
+
+from .._jit import inline_kernel, kernel, parallel_kernel
+from .borrow import borrow
+from .cellbounds import PIECES, SLACK, _end_distances, _end_slopes, _ipow, _reach_interval, _second_sup
+from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
+from .raysupport import kprime_max
+
+
+@kernel
+def _nearest_axis(seg, lst, a, b, cx, cy, cz, r, sigma):
+    """In-plane unit direction ``(ux, uy)`` of the segment of ``lst[a:b]`` whose axis
+    is nearest ``c`` relative to its radius there, among those whose support can
+    reach the disc; ``(1, 0)`` when none reaches or its axis is nearly vertical."""
+    best = np.inf
+    ux = 1.0
+    uy = 0.0
+    for q in range(a, b):
+        i = lst[q]
+        ta, tb = _reach_interval(seg, i, cx, cy, cz, r, sigma)
+        if not tb > ta:
+            continue
+        wx = cx - seg[i, AX]
+        wy = cy - seg[i, AY]
+        wz = cz - seg[i, AZ]
+        t = min(max(wx * seg[i, UX] + wy * seg[i, UY] + wz * seg[i, UZ], 0.0), seg[i, LEN])
+        d2 = _end_distances(wx, wy, wz, seg[i, UX], seg[i, UY], seg[i, UZ], t)[1]
+        tau = seg[i, TAU0] + seg[i, DELTA] * t
+        if tau > 0.0 and d2 < best * tau * tau:
+            best = d2 / (tau * tau)
+            axy = math.hypot(seg[i, UX], seg[i, UY])
+            if axy > 1e-3:
+                ux = seg[i, UX] / axy
+                uy = seg[i, UY] / axy
+            else:
+                ux = 1.0
+                uy = 0.0
+    return ux, uy
+
+
+@inline_kernel
+def _across(cw, aw, nw, t0, t1, r, dlo):
+    """Upper bound of ``|e·w|`` over the disc and a piece ``[t0, t1]`` of an axis
+    ``q(t) = a0 + t a``, for a direction ``w`` with ``cw = (c − a0)·w``, ``aw = a·w``
+    and ``nw = ‖w‖``: ``|(p − q)·w| <= max(|cw − t0 aw|, |cw − t1 aw|) + r nw``
+    (linear in t; ``p − c`` in the plane, at most r long) over ``‖p − q‖ >= dlo``,
+    and ``|e·w| <= nw`` (``e`` a unit vector)."""
+    top = max(abs(cw - t0 * aw), abs(cw - t1 * aw)) * (1.0 + SLACK) + r * nw
+    if dlo > 0.0:
+        return min(nw, top / dlo)
+    return nw
+
+
+@inline_kernel
+def _piece_weights(wx, wy, wz, ax, ay, az, tau_lo, tau_hi, t0, t1, r, sigma, m, cn):
+    """Over the disc and the axis piece ``[t0, t1]`` (radii ``tau_lo <= tau_hi``):
+    ``dlo`` (least ``‖p − q‖``), ``sec`` (upper bound of ``∫ α dt``), ``bl`` and
+    ``bh`` (bounds of ``∫ β dt``); ``sec < 0`` when no point of the piece reaches."""
+    tc = min(max(wx * ax + wy * ay + wz * az, t0), t1)
+    dist = math.sqrt(_end_distances(wx, wy, wz, ax, ay, az, tc)[1])
+    dmax = math.sqrt(max(_end_distances(wx, wy, wz, ax, ay, az, t0)[1],
+                         _end_distances(wx, wy, wz, ax, ay, az, t1)[1]))
+    dlo = dist * (1.0 - SLACK) - r
+    s_lo = max(dlo, 0.0) / (tau_hi * (1.0 + SLACK))
+    if s_lo >= sigma:
+        return dlo, -1.0, 0.0, 0.0
+    s_hi = (dmax * (1.0 + SLACK) + r) / (tau_lo * (1.0 - SLACK))
+    u_lo = s_lo * s_lo / (sigma * sigma)
+    u_hi = min(s_hi * s_hi / (sigma * sigma), 1.0)
+    ln = (t1 - t0) * cn
+    it3 = 1.0 / (tau_lo * tau_lo * tau_lo)
+    return (dlo, ln * _second_sup(u_lo, u_hi, m) * it3, ln * _ipow(1.0 - u_hi, m - 1) / (tau_hi * tau_hi * tau_hi),
+            ln * _ipow(1.0 - u_lo, m - 1) * it3)
+
+
+@kernel
+def _segment_frame(seg, i, cx, cy, cz, r, ta, tb, ux, uy, n, sigma, norm, k1):
+    """Bounds over the disc of segment ``i``'s ``f_vv`` and ``f_uu`` (above) and
+    ``|f_uv|``, from the axis points in ``[ta, tb]`` cut into ``PIECES`` pieces
+    (:func:`_piece_weights`; ``e·w`` by :func:`_across`), and a magnitude of the
+    terms summed (for the rounding slack); ``u = (ux, uy, 0)``, ``v = (−uy, ux, 0)``.
+
+    General form: ``f_ww <= Σ sec pe_w² − Bl``, ``|f_uv| <= Σ sec pe_u pe_v``.
+    Untapered, with ``w = w_a a + w'`` (``a`` the axis, ``w' ⟂ a``) and ``W`` the
+    end terms' slope bound: ``f_ww <= Σ sec pe_w'² − Bl ‖w'‖² + |w_a| (|w_a| +
+    2‖w'‖) W`` and ``|f_uv| <= Σ sec pe_u' pe_v' + |u'·v'| Bh + (|u_a| + |v_a| ‖u'‖) W``.
+    The smaller form is taken."""
+    wx, wy, wz = cx - seg[i, AX], cy - seg[i, AY], cz - seg[i, AZ]
+    ax, ay, az = seg[i, UX], seg[i, UY], seg[i, UZ]
+    d = seg[i, DELTA]
+    vx, vy = -uy, ux
+    ua, va = ux * ax + uy * ay, vx * ax + vy * ay          # along the axis
+    upx, upy, upz = ux - ua * ax, uy - ua * ay, -ua * az   # across it
+    vpx, vpy, vpz = vx - va * ax, vy - va * ay, -va * az
+    nu = math.sqrt(upx * upx + upy * upy + upz * upz)
+    nv = math.sqrt(vpx * vpx + vpy * vpy + vpz * vpz)
+    cu, cv = wx * ux + wy * uy, wx * vx + wy * vy           # (c − a0)·w
+    cup, cvp = wx * upx + wy * upy + wz * upz, wx * vpx + wy * vpy + wz * vpz
+    step = (tb - ta) / PIECES
+    guu = gvv = guv = tuu = tvv = tuv = bl = bh = 0.0
+    for j in range(PIECES):
+        t0 = ta + j * step
+        t1 = tb if j == PIECES - 1 else t0 + step
+        tau_lo = seg[i, TAU0] + d * t0
+        if not tau_lo > 0.0:
+            return np.inf, np.inf, np.inf, np.inf
+        dlo, sec, blj, bhj = _piece_weights(wx, wy, wz, ax, ay, az, tau_lo, seg[i, TAU0] + d * t1, t0, t1, r,
+                                            sigma, n // 2, norm * n / (sigma * sigma))
+        if sec < 0.0:
+            continue
+        bl += blj
+        bh += bhj
+        pu = _across(cu, ua, 1.0, t0, t1, r, dlo)
+        pv = _across(cv, va, 1.0, t0, t1, r, dlo)
+        guu += sec * pu * pu
+        gvv += sec * pv * pv
+        guv += sec * pu * pv
+        pu = _across(cup, 0.0, nu, t0, t1, r, dlo)
+        pv = _across(cvp, 0.0, nv, t0, t1, r, dlo)
+        tuu += sec * pu * pu
+        tvv += sec * pv * pv
+        tuv += sec * pu * pv
+    fuu, fvv, fuv = guu - bl, gvv - bl, guv
+    mag = guu + gvv + guv + bh
+    if d == 0.0:
+        W = _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1)
+        ua, va = abs(ua), abs(va)
+        fuu = min(fuu, tuu - bl * nu * nu + ua * (ua + 2.0 * nu) * W)
+        fvv = min(fvv, tvv - bl * nv * nv + va * (va + 2.0 * nv) * W)
+        fuv = min(fuv, tuv + abs(upx * vpx + upy * vpy + upz * vpz) * bh + (ua + va * nu) * W)
+        mag += tuu + tvv + tuv + 3.0 * W
+    return fvv, fuu, fuv, mag
+
+
+@kernel
+def _frame_disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1):
+    """:func:`ridge_bounds` of one disc from the segments ``lst[a:b]``.
+
+    Returns
+    -------
+    ux, uy, FVV, FUU, FUV : float
+    """
+    ux, uy = _nearest_axis(seg, lst, a, b, cx, cy, z, r, sigma)
+    if n < 4:       # n = 2: the gradient jumps at the support's edge, no second-derivative bound
+        return ux, uy, np.inf, np.inf, np.inf
+    vv = uu = uv = mag = 0.0
+    for q in range(a, b):
+        i = lst[q]
+        ta, tb = _reach_interval(seg, i, cx, cy, z, r, sigma)
+        if not tb > ta:
+            continue
+        fvv, fuu, fuv, mg = _segment_frame(seg, i, cx, cy, z, r, ta, tb, ux, uy, n, sigma, norm, k1)
+        vv += fvv
+        uu += fuu
+        uv += fuv
+        mag += mg
+    pad = 4.0 * SLACK * mag
+    return ux, uy, vv + pad, uu + pad, (uv + pad) * (1.0 + SLACK)
+
+
+def ridge_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
+    """Frame and signed second-derivative bounds of the field over discs of the plane ``z``.
+
+    Parameters
+    ----------
+    seg : (m, 10) float64
+        Segment table (:mod:`slicer._kernels.field`).
+    ids : (q,) int64
+        Segments to consider (those whose support meets the plane).
+    cx, cy, r : (c,) float64, mm
+        Disc centres and radii.
+    z : float, mm
+    n, sigma, norm : int, float, float
+        Kernel degree, support factor and normalisation.
+
+    Returns
+    -------
+    ux, uy : (c,) float64
+        In-plane unit direction ``u`` of the axis nearest each centre
+        (relative to its radius); ``v = (−uy, ux)``.
+    FVV, FUU : (c,) float64, 1/mm²
+        Upper bounds of ``∂²F/∂v²`` and ``∂²F/∂u²`` over each disc (negative:
+        ``F`` is strictly concave along that direction there; inf: none, as
+        for the degree 2, whose gradient jumps at the support's edge).
+    FUV : (c,) float64, 1/mm²
+        Upper bound of ``|∂²F/∂u∂v|`` over each disc.
+    """
+    ids = np.ascontiguousarray(ids, dtype=np.int64)
+    return ridge_bounds_binned(seg, np.array([0, ids.size], dtype=np.int64), ids, 0.0, 0.0, np.inf, 1, 1,
+                               cx, cy, z, r, n, sigma, norm)
+
+
+@parallel_kernel
+def ridge_bounds_binned(seg, offsets, bins, x0, y0, side, nx, ny, cx, cy, z, r, n, sigma, norm):
+    """:func:`ridge_bounds` with the plane's segments binned as for
+    :func:`slicer._kernels.cellbounds.disc_bounds_binned` (the same bins serve both)."""
+    k1 = kprime_max(n, sigma, norm)
+    seg = borrow(seg)        # slicer._kernels.borrow: arguments outlive the call
+    bins = borrow(bins)
+    nc = cx.shape[0]
+    UXo = np.zeros(nc)
+    UYo = np.zeros(nc)
+    VV = np.zeros(nc)
+    UU = np.zeros(nc)
+    UV = np.zeros(nc)
+    for j in prange(nc):
+        ix = min(max(int(math.floor((cx[j] - x0) / side)), 0), nx - 1)
+        iy = min(max(int(math.floor((cy[j] - y0) / side)), 0), ny - 1)
+        c = iy * nx + ix
+        UXo[j], UYo[j], VV[j], UU[j], UV[j] = _frame_disc(seg, bins, offsets[c], offsets[c + 1], cx[j], cy[j], z,
+                                                          r[j], n, sigma, norm, k1)
+    return UXo, UYo, VV, UU, UV
