@@ -401,11 +401,16 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
 def _crests(bounds: _Bounds, cx: np.ndarray, cy: np.ndarray, rr: float, state: np.ndarray, taylor) -> np.ndarray:
     """``state`` with the unresolved cells that may hold a critical point of the
     field in the plane (``‖∇_xy F(c)‖ <= r H``: the gradient may vanish in them)
-    tried as crest cells (:meth:`_Bounds.ridge`)."""
+    tried as crest cells (:meth:`_Bounds.ridge`), unless F is proven to exceed
+    there what a crest cell allows, ``1 + c thin²/8`` with ``c <= H``: F is at
+    least ``F(c) + g t − H t²/2`` a step ``t = min(g/H, r)`` up the gradient."""
     f, g, G, H = taylor[:4]
     gn = np.hypot(g[:, 0], g[:, 1])
-    with np.errstate(invalid="ignore"):
-        try_ = np.flatnonzero((state < 0) & (gn <= rr * H * (1.0 + SLACK) + FIELD_SLACK * (gn + G)))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        t = np.minimum(gn / H, rr)
+        low = f + gn * t - 0.5 * H * t * t - FIELD_SLACK * (1.0 + np.abs(f) + rr * (gn + G))
+        try_ = np.flatnonzero((state < 0) & (gn <= rr * H * (1.0 + SLACK) + FIELD_SLACK * (gn + G))
+                              & ~(low > 1.0 + 0.125 * H * bounds.thin ** 2))
     if try_.size == 0:
         return state
     out = state.copy()
