@@ -158,3 +158,21 @@ def test_error_time_sweep_small(tmp_path):
 def test_cli_bench_needs_a_benchmark():
     res = CliRunner().invoke(main, ["bench"])
     assert res.exit_code == 2 and "error, table1" in res.output
+
+
+def test_contour_cost_measures_the_slice_commands_grid(tmp_path):
+    """``--pixel-size`` gives ``contour_cost`` the grid of ``slice --pixel-size``
+    (not the sweep's), and the table and JSON report both jobs on it."""
+    from sample_lattices import load_sample
+    from slicer.slicing import slice_skeleton
+    from validation.contour_cost import main as contour_cost
+
+    out = tmp_path / "cost.json"
+    assert contour_cost(["--model", "cubic_2x2x2", "--pixel-size", "0.4", "--tol", "0.01", "--repeat", "1",
+                         "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    grid = slice_skeleton(load_sample("cubic_2x2x2"), 0.4).grid
+    assert (res["grid"]["width"], res["grid"]["height"], res["grid"]["layers"]) == (grid.width, grid.height,
+                                                                                    grid.layers)
+    assert res["grid"]["pixel_size"] == 0.4 and "--pixel-size 0.4" in res["command"]
+    assert res["guaranteed"]["counts"]["vertices"] > 0 and res["trace"]["counts"]["evaluations"] > 0

@@ -3,12 +3,16 @@
 Usage::
 
     python -m validation.contour_cost [--model octet_2x2x2] [--pixels 113] [--layers 113]
-                                      [--tol 0.001] [--repeat 3] [--threads 1] [--json out.json]
+                                      [--pixel-size P] [--tol 0.001] [--repeat 3] [--threads 1]
+                                      [--json out.json]
 
 The grid is that of the error-against-time sweep (:mod:`validation.error_time`):
 a square image of ``--pixels`` over the model's support box and ``--layers``
 layers over its height (octet_2x2x2: 113 x 113 px x 113 layers of about
-0.1 mm). Two jobs on that grid:
+0.1 mm). With ``--pixel-size P`` it is instead the grid of ``skelslice slice
+MODEL --pixel-size P`` (pixels and layers of P mm on the lattice of multiples
+of P, trimmed to the model; octet_2x2x2 at 0.1 mm: 113 x 113 px x 113 layers,
+10 of whose planes touch the tops and bottoms of the struts lying in them). Two jobs on that grid:
 
 ``trace``
     :func:`slicer.slicing.trace` (interval method, buckets of 64 px): the
@@ -46,7 +50,7 @@ from sample_lattices import load_sample
 from slicer._kernels.launch import numba_threads
 from slicer.contours import each_plane, grid_box, plane_contours
 from slicer.grid import make_grid
-from slicer.slicing import trace
+from slicer.slicing import slice_skeleton, trace
 
 from . import machine
 from .error_time import square_box
@@ -82,10 +86,14 @@ def run_contours(skel, grid, tol: float, workers: int | None = None) -> tuple[fl
 
 
 def measure(model: str = "octet_2x2x2", pixels: int = 113, layers: int = 113, tol: float = 1e-3,
-            repeat: int = 3, threads: int | None = 1) -> dict:
-    """Counts and seconds of both jobs; returns a JSON-ready dict."""
+            repeat: int = 3, threads: int | None = 1, pixel_size: float | None = None) -> dict:
+    """Counts and seconds of both jobs; returns a JSON-ready dict. ``pixel_size``:
+    the ``slice`` command's grid at that pixel size instead of the sweep's."""
     skel = load_sample(model)
-    grid = sweep_grid(skel, pixels, layers)
+    if pixel_size is None:
+        grid = sweep_grid(skel, pixels, layers)
+    else:
+        grid = slice_skeleton(skel, pixel_size).grid        # trimmed to the model, as the command's
     out = {"benchmark": "contour_cost", "model": model, "segments": skel.n_segments,
            "grid": {"width": grid.width, "height": grid.height, "layers": grid.layers,
                     "pixel_size": float(grid.pixel_size[0]), "layer_height": float(grid.layer_height)},
@@ -131,7 +139,8 @@ def format_table(res: dict) -> str:
         v = c.get(key, 0)
         lines.append(f"{'  ' + stage:<26}{v:>14,}{v / max(c['evaluations'], 1):>8.1%}")
     lines.append(f"cells {c.get('cells', 0):,}, leaves {c.get('leaves', 0):,} "
-                 f"(small {c.get('small_leaves', 0):,}), vertices {c.get('vertices', 0):,}, "
+                 f"(small {c.get('small_leaves', 0):,}, thin {c.get('thin_leaves', 0):,}), "
+                 f"vertices {c.get('vertices', 0):,}, "
                  f"refined {c.get('refined', 0):,}, unbracketed {c.get('unbracketed', 0)}")
     return "\n".join(lines)
 
@@ -142,12 +151,14 @@ def main(argv=None) -> int:
     ap.add_argument("--model", default="octet_2x2x2")
     ap.add_argument("--pixels", type=int, default=113)
     ap.add_argument("--layers", type=int, default=113)
+    ap.add_argument("--pixel-size", type=float, default=None,
+                    help="the slice command's grid at this pixel size, mm (instead of --pixels, --layers)")
     ap.add_argument("--tol", type=float, default=1e-3, help="contour tolerance, mm")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--json", type=Path, default=None, help="write the results here")
     args = ap.parse_args(argv)
-    res = measure(args.model, args.pixels, args.layers, args.tol, args.repeat, args.threads)
+    res = measure(args.model, args.pixels, args.layers, args.tol, args.repeat, args.threads, args.pixel_size)
     res = {"command": machine.command_line("python -m validation.contour_cost", argv), **res,
            "machine": machine.describe()}
     machine.publish(res, format_table(res), args.json)
