@@ -306,10 +306,23 @@ def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
         Upper bound of ``F`` over each disc (the integrand ``k(s)/tau`` is at
         most ``k(s_lo)/tau_min`` on each piece).
     """
+    return disc_bounds_binned(seg, *single_bin(ids), cx, cy, z, r, n, sigma, norm)
+
+
+def single_bin(ids):
+    """The binned kernels' lists with one square holding every segment ``ids``:
+    ``(offsets, lists, x0, y0, side, nx, ny)``."""
     ids = np.ascontiguousarray(ids, dtype=np.int64)
-    # one square holding every segment: the binned kernel's lists, with a single list
-    return disc_bounds_binned(seg, np.array([0, ids.size], dtype=np.int64), ids, 0.0, 0.0, np.inf, 1, 1,
-                              cx, cy, z, r, n, sigma, norm)
+    return np.array([0, ids.size], dtype=np.int64), ids, 0.0, 0.0, np.inf, 1, 1
+
+
+@inline_kernel
+def square_of(x, y, x0, y0, side, nx, ny):
+    """Index ``iy * nx + ix`` of the square of side ``side`` from ``(x0, y0)``
+    holding the point ``(x, y)``, clamped to the ``nx x ny`` grid."""
+    ix = min(max(int(math.floor((x - x0) / side)), 0), nx - 1)
+    iy = min(max(int(math.floor((y - y0) / side)), 0), ny - 1)
+    return iy * nx + ix
 
 
 @parallel_kernel
@@ -332,9 +345,7 @@ def disc_bounds_binned(seg, offsets, bins, x0, y0, side, nx, ny, cx, cy, z, r, n
     H = np.zeros(nc)
     U = np.zeros(nc)
     for j in prange(nc):
-        ix = min(max(int(math.floor((cx[j] - x0) / side)), 0), nx - 1)
-        iy = min(max(int(math.floor((cy[j] - y0) / side)), 0), ny - 1)
-        c = iy * nx + ix
+        c = square_of(cx[j], cy[j], x0, y0, side, nx, ny)
         G[j], H[j], U[j] = _disc(seg, bins, offsets[c], offsets[c + 1], cx[j], cy[j], z, r[j], n, sigma, norm,
                                  k1, k2)
     return G, H, U

@@ -23,7 +23,8 @@ from numba import prange
 
 from .._jit import inline_kernel, kernel, parallel_kernel
 from .borrow import borrow
-from .cellbounds import PIECES, SLACK, _end_distances, _end_slopes, _ipow, _reach_interval, _second_sup
+from .cellbounds import (PIECES, SLACK, _end_distances, _end_slopes, _ipow, _reach_interval, _second_sup,
+                         single_bin, square_of)
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 from .raysupport import kprime_max
 
@@ -182,17 +183,9 @@ def _frame_disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1):
 def ridge_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
     """Frame and signed second-derivative bounds of the field over discs of the plane ``z``.
 
-    Parameters
-    ----------
-    seg : (m, 10) float64
-        Segment table (:mod:`slicer._kernels.field`).
-    ids : (q,) int64
-        Segments to consider (those whose support meets the plane).
-    cx, cy, r : (c,) float64, mm
-        Disc centres and radii.
-    z : float, mm
-    n, sigma, norm : int, float, float
-        Kernel degree, support factor and normalisation.
+    Parameters are those of :func:`slicer._kernels.cellbounds.disc_bounds`
+    (the segment table, the plane's segments ``ids``, the disc centres and
+    radii ``cx, cy, r`` in mm, ``z`` and the kernel's ``n, sigma, norm``).
 
     Returns
     -------
@@ -206,9 +199,7 @@ def ridge_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
     FUV : (c,) float64, 1/mm²
         Upper bound of ``|∂²F/∂u∂v|`` over each disc.
     """
-    ids = np.ascontiguousarray(ids, dtype=np.int64)
-    return ridge_bounds_binned(seg, np.array([0, ids.size], dtype=np.int64), ids, 0.0, 0.0, np.inf, 1, 1,
-                               cx, cy, z, r, n, sigma, norm)
+    return ridge_bounds_binned(seg, *single_bin(ids), cx, cy, z, r, n, sigma, norm)
 
 
 @parallel_kernel
@@ -225,9 +216,7 @@ def ridge_bounds_binned(seg, offsets, bins, x0, y0, side, nx, ny, cx, cy, z, r, 
     UU = np.zeros(nc)
     UV = np.zeros(nc)
     for j in prange(nc):
-        ix = min(max(int(math.floor((cx[j] - x0) / side)), 0), nx - 1)
-        iy = min(max(int(math.floor((cy[j] - y0) / side)), 0), ny - 1)
-        c = iy * nx + ix
+        c = square_of(cx[j], cy[j], x0, y0, side, nx, ny)
         UXo[j], UYo[j], VV[j], UU[j], UV[j] = _frame_disc(seg, bins, offsets[c], offsets[c + 1], cx[j], cy[j], z,
                                                           r[j], n, sigma, norm, k1)
     return UXo, UYo, VV, UU, UV
