@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -22,7 +23,7 @@ from slicer._kernels.binning import bin_boxes
 from slicer._kernels.cellbounds import disc_bounds, disc_bounds_binned
 from slicer._kernels.points import field_at_points
 from slicer._kernels.ridgebounds import ridge_bounds, ridge_bounds_binned
-from slicer.contours.cells import _bin_segments, _root_grid, plane_segments
+from slicer.contours.cells import THIN, _bin_segments, _root_grid, plane_segments
 from slicer.field import evaluate, point_grid, segment_table, support_boxes
 
 #: step of the central differences, mm; their error (h² times the third
@@ -215,3 +216,73 @@ def test_the_field_does_not_depend_on_the_point_grid():
     assert (out[0][0] > 1.0).any()
     for f, g in out[1:]:
         assert np.array_equal(f, out[0][0]) and np.array_equal(g, out[0][1])
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(st.floats(0.0, math.pi), st.floats(0.1, 0.6), st.one_of(st.floats(-3e-3, 1e-3), st.floats(-2e-5, 0.0)),
+       st.booleans(), st.floats(-1.0, 1.0),
+       st.floats(-1.0, 1.0), st.sampled_from([0.002, 0.01, 0.05]), st.sampled_from([1e-4, 1e-3]),
+       st.integers(0, 2 ** 16))
+def test_crest_cells_hold_what_they_claim(phi, radius, depth, crossing, along, across, r, thin, seed):
+    """Discs near the crest of a strut lying in the plane (the plane at ``depth``
+    radii from its top; alone, or crossing another strut): a disc the crest test
+    calls outside has F < 1 at every sampled point, and one it calls thin meets
+    every sampled line across the crest in an inside stretch no longer than
+    ``thin`` (plus the sampling step); planes a few 1e-6 radii below the top
+    cut stretches about as wide as ``thin``."""
+    from slicer.contours.cells import OUT, THIN, _Bounds
+
+    u = np.array([math.cos(phi), math.sin(phi), 0.0])
+    v = np.array([-u[1], u[0], 0.0])
+    nodes = [-2.0 * u, 2.0 * u]
+    segs = [[0, 1]]
+    if crossing:                                  # a second strut meets the first at a node
+        nodes += [1.2 * u + 1.5 * v + [0, 0, 0.3], 1.2 * u - 1.5 * v - [0, 0, 0.3]]
+        segs.append([2, 3])
+    skel = Skeleton(nodes, segs, [[radius, radius]] * len(segs))
+    z = radius * (1.0 + depth)
+    c = along * 1.5 * u + across * r * v
+    cx, cy, rr = np.array([c[0]]), np.array([c[1]]), np.array([r])
+    b = _Bounds(skel, z, plane_segments(skel, z), 1e-3, thin=thin)
+    state, _, _, taylor = b.classify(cx, cy, rr)
+    if state[0] >= 0:
+        return
+    verdict = b.ridge(cx, cy, rr, taylor)[0]
+    if verdict < 0:
+        return
+    ux, uy = ridge_bounds(b.table, b.ids, cx, cy, z, rr, skel.degree, skel.sigma, skel.normalisation)[:2]
+    fu, fv = np.array([ux[0], uy[0], 0.0]), np.array([-uy[0], ux[0], 0.0])
+    step = thin / 8
+    t = np.arange(-r, r + step, step)
+    for s in np.random.default_rng(seed).uniform(-r, r, 12):
+        half = math.sqrt(max(r * r - s * s, 0.0))
+        tt = t[np.abs(t) <= half]
+        pts = np.array([c[0], c[1], z]) + s * fu + tt[:, None] * fv
+        f = evaluate(skel, pts)[0]
+        inside = tt[f >= 1.0]
+        if verdict == OUT:
+            assert inside.size == 0, (s, f.max())
+        else:
+            assert verdict == THIN
+            assert inside.size == 0 or inside.max() - inside.min() <= thin + 2 * step, (s, inside.min(), inside.max())
+
+
+@pytest.mark.parametrize("depth, width_um, thin", [(1e-7, 0.49, True), (5e-7, 1.095, False), (1e-6, 1.549, False)])
+def test_crest_test_is_sharp_at_its_width(depth, width_um, thin):
+    """A strut of radius 0.3 lying in the plane, the plane ``depth`` mm below its top:
+    the section is a strip ``width_um`` µm wide (sampled below). With thin = 1 µm,
+    discs on the crest are thin when the strip is half of that, and neither thin
+    nor outside when it is 1.1 or 1.5 times that."""
+    from slicer.contours.cells import _Bounds
+
+    s = Skeleton([[-2, 0, 0], [2, 0, 0]], [[0, 1]], [[0.3, 0.3]])
+    z = 0.3 - depth
+    y = np.linspace(-5e-3, 5e-3, 100001)
+    inside = y[evaluate(s, np.column_stack([np.full(y.size, 0.2), y, np.full(y.size, z)]))[0] >= 1.0]
+    assert inside.max() - inside.min() == pytest.approx(width_um * 1e-3, abs=5e-7)
+    b = _Bounds(s, z, plane_segments(s, z), 1e-3, thin=1e-3)
+    for r in (0.001, 0.01):
+        cx, cy, rr = np.array([0.2]), np.array([0.3 * r]), np.array([r])
+        state, _, _, taylor = b.classify(cx, cy, rr)
+        assert state[0] < 0
+        assert b.ridge(cx, cy, rr, taylor)[0] == (THIN if thin else -1)
