@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -33,3 +35,32 @@ def test_speed_quick_json_shape(tmp_path):
     assert jobs["jelly"]["evaluations"] < jobs["jelly2x"]["evaluations"] < 2 * jobs["jelly"]["evaluations"]
     # the table is printed with one row per job
     assert p.stdout.count("\n| ") >= 6 and "| octet |" in p.stdout
+
+
+def test_kernel_profile_names_numba_symbols_and_sums_their_shares():
+    """benchmarks/kernel_profile.py reads ``perf report --sort sym --stdio``: Numba's
+    mangled names of slicer._kernels become ``module.function``, specialisations of
+    one function add up, other symbols (the interpreter, LLVM compiling) are left out
+    of the shares but not of the total."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("kernel_profile", ROOT / "benchmarks" / "kernel_profile.py")
+    kp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(kp)
+    assert kp.kernel_name("_ZN6slicer8_kernels5trace18trace_ray_intervalB3v20B56c8tJTIeFIjxB2IKSgI4CrvQCk0Z") \
+        == "trace.trace_ray_interval"
+    assert kp.kernel_name("_ZN5numba7cpython8unicodeE") is None and kp.kernel_name("_PyEval_EvalFrameDefault") is None
+    assert kp.kernel_name("NRT_incref") == "NRT_incref"
+    report = """# Samples: 15K of event 'cpu-clock:ppp'
+#
+    60.00%  [.] _PyEval_EvalFrameDefault
+     3.00%  [.] _ZN6slicer8_kernels5field12segment_evalB3v63B56c8tJTIeFIjxB2IKSgI4CrvSCKg1MMbCQQ
+     1.00%  [.] _ZN6slicer8_kernels5field12segment_evalB3v64B56c8tJTIeFIjxB2IKSgI4CrvSCKg1MMbCQQ
+     4.00%  [.] _ZN6slicer8_kernels5trace18trace_ray_intervalB3v20B56c8tJTIeFIjxB2IKSgI4CrvQCk0Z
+     2.00%  NRT_decref
+"""
+    shares, jit = kp.kernel_shares(report)
+    assert list(shares) == ["field.segment_eval", "trace.trace_ray_interval", "NRT_decref"]
+    assert shares["field.segment_eval"] == pytest.approx(0.4) and shares["NRT_decref"] == pytest.approx(0.2)
+    assert jit == pytest.approx(0.10)
+    assert kp.kernel_shares("nothing here") == ({}, 0.0)
