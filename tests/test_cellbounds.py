@@ -179,7 +179,7 @@ def test_binned_bounds_are_the_bounds_over_every_segment_of_the_plane():
     for z in np.linspace(lo[2], hi[2], 7)[1:-1]:
         ids = plane_segments(skel, z)
         x0, y0, s0, nx, ny, _ = _root_grid(skel, ids, 1e-3, None)
-        bx0, by0, side, bnx, bny, rmax, offsets, lists = _bin_segments(skel, ids, x0, y0, s0, nx, ny)
+        bx0, by0, side, bnx, bny, rmax, offsets, lists = _bin_segments(skel, z, x0, y0, s0, nx, ny)
         assert lists.size < ids.size * nx * ny            # the bins do leave segments out
         k = 3000
         cx = x0 + rng.random(k) * nx * s0

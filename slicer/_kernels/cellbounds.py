@@ -128,9 +128,9 @@ def _second_sup(ulo, uhi, m):
 
 
 @kernel
-def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
+def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces):
     """Slope, curvature and value bounds of segment ``i`` over the disc, from the
-    axis points ``t`` in ``[ta, tb]``, split into ``PIECES`` pieces: on a piece,
+    axis points ``t`` in ``[ta, tb]``, split into ``pieces`` pieces: on a piece,
     ``dist(c, piece) − r <= ‖p − q‖ <= max(‖c − q(t0)‖, ‖c − q(t1)‖) + r``,
     ``tau_min <= tau <= tau_max`` and the in-plane part of the unit vector
     ``e = (p − q)/‖p − q‖`` is at most ``pe = (max |P(c − q)| + r)/(dist − r)``.
@@ -154,15 +154,15 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2):
     d = seg[i, DELTA]
     m = n // 2
     cn = norm * n / (sigma * sigma)
-    step = (tb - ta) / PIECES
+    step = (tb - ta) / pieces
     g = h = f = bh = bl = a = ap = 0.0
     # distance of c from the axis line: every p of the disc is within it + r
     rho = math.sqrt(max(wx * wx + wy * wy + wz * wz - wu * wu, 0.0)) * (1.0 + SLACK) + r
     # squared in-plane and full distances of c from the piece's start (the previous piece's end)
     q0, Q0 = _end_distances(wx, wy, wz, ux, uy, uz, ta)
-    for j in range(PIECES):
+    for j in range(pieces):
         t0 = ta + j * step
-        t1 = tb if j == PIECES - 1 else t0 + step
+        t1 = tb if j == pieces - 1 else t0 + step
         tau_lo = tau0 + d * t0
         tau_hi = tau0 + d * t1
         if not tau_lo > 0.0:
@@ -241,7 +241,7 @@ GOLDEN = 1.6180339887498950
 
 
 @kernel
-def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2):
+def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces):
     """:func:`disc_bounds` of one disc from the segments ``lst[a:b]`` (in that
     order; those whose support cannot reach the disc add nothing).
 
@@ -260,7 +260,7 @@ def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2):
         ta, tb = _reach_interval(seg, i, cx, cy, z, r, sigma)
         if not tb > ta:
             continue
-        gi, hi, ui, bhi, bli, ai, api = _piece_bounds(seg, i, cx, cy, z, r, ta, tb, n, sigma, norm, k1, k2)
+        gi, hi, ui, bhi, bli, ai, api = _piece_bounds(seg, i, cx, cy, z, r, ta, tb, n, sigma, norm, k1, k2, pieces)
         g += gi
         h += hi
         u += ui
@@ -278,7 +278,7 @@ def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2):
     return g * (1.0 + SLACK), min(h * (1.0 + SLACK), split), u * (1.0 + SLACK)
 
 
-def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
+def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm, pieces=PIECES):
     """In-plane slope and curvature bounds of the field over discs of the plane ``z``.
 
     Parameters
@@ -292,6 +292,10 @@ def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
     z : float, mm
     n, sigma, norm : int, float, float
         Kernel degree, support factor and normalisation.
+    pieces : int
+        Pieces each segment's reach interval is cut into: fewer give looser
+        bounds sooner (cut into a multiple of them, the bounds can only
+        tighten, up to rounding: every piece's bound holds over its parts).
 
     Returns
     -------
@@ -306,7 +310,7 @@ def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
         Upper bound of ``F`` over each disc (the integrand ``k(s)/tau`` is at
         most ``k(s_lo)/tau_min`` on each piece).
     """
-    return disc_bounds_binned(seg, *single_bin(ids), cx, cy, z, r, n, sigma, norm)
+    return disc_bounds_binned(seg, *single_bin(ids), cx, cy, z, r, n, sigma, norm, pieces)
 
 
 def single_bin(ids):
@@ -326,7 +330,7 @@ def square_of(x, y, x0, y0, side, nx, ny):
 
 
 @parallel_kernel
-def disc_bounds_binned(seg, offsets, bins, x0, y0, side, nx, ny, cx, cy, z, r, n, sigma, norm):
+def disc_bounds_binned(seg, offsets, bins, x0, y0, side, nx, ny, cx, cy, z, r, n, sigma, norm, pieces=PIECES):
     """:func:`disc_bounds` with the plane's segments binned on a grid of
     ``nx x ny`` squares of side ``side`` from ``(x0, y0)``: each disc looks
     only at the list of the square holding its centre, ``bins[offsets[c] :
@@ -347,5 +351,5 @@ def disc_bounds_binned(seg, offsets, bins, x0, y0, side, nx, ny, cx, cy, z, r, n
     for j in prange(nc):
         c = square_of(cx[j], cy[j], x0, y0, side, nx, ny)
         G[j], H[j], U[j] = _disc(seg, bins, offsets[c], offsets[c + 1], cx[j], cy[j], z, r[j], n, sigma, norm,
-                                 k1, k2)
+                                 k1, k2, pieces)
     return G, H, U

@@ -37,15 +37,19 @@ import math
 import numpy as np
 
 from .._kernels.binning import bin_boxes
-from .._kernels.cellbounds import SLACK, disc_bounds, disc_bounds_binned
+from .._kernels.cellbounds import PIECES, SLACK, disc_bounds, disc_bounds_binned
 from .._kernels.contours import chain_rings
 from .._kernels.ridgebounds import ridge_bounds, ridge_bounds_binned
 from ..errors import OptionError
-from ..field import point_grid, support_boxes
+from ..field import plane_footprints, point_grid, support_boxes
 from ..ordering import stable_argsort
 from ..skeleton import Skeleton
 from .roots import FIELD_SLACK, _field, solve_crossings
 from .simplify import CHORD_FRACTION
+
+#: pieces per segment of the cheap disc bounds tried before the full ones
+#: (:meth:`_Bounds.classify`)
+COARSE_PIECES = 4
 
 #: cells whose side is at most this many tolerances take their parent's disc
 #: bounds instead of computing their own
@@ -95,26 +99,24 @@ def plane_segments(skel: Skeleton, z: float) -> np.ndarray:
     return np.flatnonzero((lo[:, 2] <= z) & (z <= hi[:, 2])).astype(np.int64)
 
 
-def _bin_segments(skel: Skeleton, ids: np.ndarray, x0: float, y0: float, side: float, nx: int, ny: int):
-    """The plane's segments ``ids`` binned on the root grid (``nx x ny`` squares of
-    ``side`` from ``(x0, y0)``), each by its support box grown by the largest disc
-    a root cell needs, so a square's list holds every segment that can reach a
-    disc of radius ``<= rmax`` centred in it.
+def _bin_segments(skel: Skeleton, z: float, x0: float, y0: float, side: float, nx: int, ny: int):
+    """The segments of the plane ``z`` binned on the root grid (``nx x ny`` squares of
+    ``side`` from ``(x0, y0)``), each by its support's footprint in the plane grown by
+    the largest disc a root cell needs (:func:`slicer.field.plane_footprints`), so a
+    square's list holds every segment that can reach a disc of radius ``<= rmax``
+    centred in it.
 
     Returns
     -------
     (x0, y0, side, nx, ny, rmax, offsets, lists)
     """
-    lo, hi = support_boxes(skel)
     rmax = 0.5 * math.sqrt(2.0) * side * (1.0 + SLACK)
     # generous: a segment binned where it cannot reach is rejected exactly as
     # without bins, so the bounds are the unbinned ones to the bit
     grow = 1.01 * rmax + 1e-6 * (1.0 + abs(x0) + abs(y0) + side * max(nx, ny))
-    blo = lo[ids].copy()
-    bhi = hi[ids].copy()
-    blo[:, :2] -= grow
-    bhi[:, :2] += grow
-    blo[:, 2] = bhi[:, 2] = 0.0
+    ids, flo, fhi = plane_footprints(skel, z, reach=grow)
+    blo = np.column_stack([flo, np.zeros(ids.size)])
+    bhi = np.column_stack([fhi, np.zeros(ids.size)])
     order = np.arange(ids.size, dtype=np.int64)
     offsets, local = bin_boxes(blo, bhi, order, np.array([x0, y0, -1.0]), np.array([side, side, 2.0]),
                                np.array([nx, ny, 1], np.int64))
@@ -130,7 +132,7 @@ class _Bounds:
         self.thin = float(tol if thin is None else thin)
         self.table = point_grid(skel)[0]
         self.evaluations = 0
-        self.bins = None if root is None else _bin_segments(skel, ids, *root)
+        self.bins = None if root is None else _bin_segments(skel, self.z, *root)
 
     def _binned(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
         """The bins' arguments when every disc fits them, else None."""
@@ -142,14 +144,15 @@ class _Bounds:
             return offsets, lists, x0, y0, side, nx, ny
         return None
 
-    def disc_bounds(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
+    def disc_bounds(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, pieces: int = PIECES):
         """G, H, U of :func:`slicer._kernels.cellbounds.disc_bounds` over the discs,
         from the segments binned near each centre when the discs fit the bins."""
         sk = self.skel
         binned = self._binned(cx, cy, r)
         if binned is not None:
-            return disc_bounds_binned(self.table, *binned, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
-        return disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
+            return disc_bounds_binned(self.table, *binned, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation,
+                                      pieces)
+        return disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation, pieces)
 
     def ridge_bounds(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
         """Frame and signed bounds of :func:`slicer._kernels.ridgebounds.ridge_bounds`
@@ -239,8 +242,31 @@ class _Bounds:
         ``inherited``: ``(G, H, U)`` of discs that contain these (a parent's
         disc holds its children's), used as they are instead of new bounds.
         ``values``: the field and in-plane gradient at the centres, ``(c,)`` and
-        ``(c, 2)``, when already known (no evaluation)."""
-        G, H, U = self.disc_bounds(cx, cy, r) if inherited is None else inherited
+        ``(c, 2)``, when already known (no evaluation).
+
+        With neither (root cells), the discs first get cheap bounds
+        (``COARSE_PIECES`` pieces per segment); only the cells these leave
+        neither IN nor OUT get the full ones. The full bounds are at least as
+        tight, so the cells the cheap ones settle are those the full ones would
+        settle, in the same state; the others get the full bounds' state and
+        data. (Smaller cells need bounds of their own only where their parent's
+        left them unresolved, near the contour, where cheap bounds seldom
+        settle anything.)"""
+        if inherited is not None or values is not None:
+            return self._judge(cx, cy, r, inherited if inherited is not None else self.disc_bounds(cx, cy, r), values)
+        state, kappa, slope, taylor = self._judge(cx, cy, r, self.disc_bounds(cx, cy, r, COARSE_PIECES), values)
+        again = np.flatnonzero((state != IN) & (state != OUT))
+        if again.size:
+            st2, kap2, slo2, tay2 = self._judge(cx[again], cy[again], r[again],
+                                                self.disc_bounds(cx[again], cy[again], r[again]),
+                                                values=(taylor[0][again], taylor[1][again]))
+            state[again], kappa[again], slope[again] = st2, kap2, slo2
+            taylor = tuple(_put(a, again, b) for a, b in zip(taylor, tay2))
+        return state, kappa, slope, taylor
+
+    def _judge(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, bounds, values=None):
+        """:meth:`classify` with the bounds ``(G, H, U)`` of the discs given."""
+        G, H, U = bounds
         # the bound of F over the disc stays below 1 (or no support reaches it): outside, no evaluation
         far = U * (1.0 + FIELD_SLACK) < 1.0
         reach = np.flatnonzero(~far)

@@ -7,7 +7,7 @@ import numpy as np
 from .._kernels.launch import serial
 from ..checks import positive_number
 from ..errors import GridError
-from ..field import evaluate
+from ..field import evaluate, evaluate_plane
 from ..skeleton import Skeleton
 
 #: iterations of the bracketed solver before it gives up (bisection halves
@@ -25,11 +25,16 @@ SERIAL_BATCH = 4096
 
 
 def _field(skel: Skeleton, points: np.ndarray, gradient: bool = False):
-    """:func:`slicer.field.evaluate`, serial for small batches (same values)."""
+    """:func:`slicer.field.evaluate`, serial for small batches (same values);
+    points of one layer plane go through that plane's support grid
+    (:func:`slicer.field.evaluate_plane`, the same values)."""
+    kern = evaluate
+    if points.shape[0] and np.all(points[:, 2] == points[0, 2]):
+        kern = evaluate_plane
     if points.shape[0] >= SERIAL_BATCH:
-        return evaluate(skel, points, gradient)
+        return kern(skel, points, gradient)
     with serial():
-        return evaluate(skel, points, gradient)
+        return kern(skel, points, gradient)
 
 
 def _check_tol(tol) -> float:
