@@ -137,11 +137,12 @@ def _segment_frame(seg, i, cx, cy, cz, r, ta, tb, ux, uy, n, sigma, norm, k1):
         guu += sec * pu * pu
         gvv += sec * pv * pv
         guv += sec * pu * pv
-        pu = _across(cup, 0.0, nu, t0, t1, r, dlo)
-        pv = _across(cvp, 0.0, nv, t0, t1, r, dlo)
-        tuu += sec * pu * pu
-        tvv += sec * pv * pv
-        tuv += sec * pu * pv
+        if d == 0.0:        # the untapered form's sums (a tapered segment has none)
+            pu = _across(cup, 0.0, nu, t0, t1, r, dlo)
+            pv = _across(cvp, 0.0, nv, t0, t1, r, dlo)
+            tuu += sec * pu * pu
+            tvv += sec * pv * pv
+            tuv += sec * pu * pv
     fuu, fvv, fuv = guu - bl, gvv - bl, guv
     mag = guu + gvv + guv + bh
     if d == 0.0:
