@@ -1,21 +1,22 @@
-"""Where a trace spends its time, kernel function by kernel function (Linux ``perf``).
+"""Where a trace or a render spends its time, kernel function by kernel function (Linux ``perf``).
 
 Usage::
 
-    python benchmarks/kernel_profile.py [--model microstructure] [--pixels 256] [--layers 512]
+    python benchmarks/kernel_profile.py [--job trace] [--model microstructure] [--pixels 256] [--layers 512]
                                         [--threads 1] [--frequency 999] [--json out.json]
+    python benchmarks/kernel_profile.py --job render --pixels 700      # the renderer, iso view
 
 ``perf`` samples Numba's machine code as anonymous memory: it cannot name the
 functions. This script runs the job in a child process under ``perf record``;
 the child compiles the kernels afresh (Numba's cache off: functions loaded from
-the cache carry no symbol table), traces the model once, writes
+the cache carry no symbol table), runs the job once, writes
 ``/tmp/perf-<pid>.map`` (the address range of every compiled function of
-:mod:`slicer._kernels`, the file ``perf report`` reads for JIT code) and traces
+:mod:`slicer._kernels`, the file ``perf report`` reads for JIT code) and runs
 it again. The table gives each kernel function's share of the samples that
 fell in compiled kernels (functions inlined into their callers count as their
 callers), the JIT code's share of all samples (the rest is mostly compiling)
-and the seconds of the second trace. Shares of sampled time, so a function's
-share includes the memory stalls of its loads; both traces are sampled, so a
+and the seconds of the second run. Shares of sampled time, so a function's
+share includes the memory stalls of its loads; both runs are sampled, so a
 job of a few seconds gives a few thousand samples in the kernels.
 """
 from __future__ import annotations
@@ -111,24 +112,40 @@ def _write_map(path: Path) -> int:
 
 def _child(args) -> None:
     from sample_lattices import load_sample
-    from slicer.grid import make_grid
-    from slicer.slicing import trace
 
     skel = load_sample(args.model)
-    lo, hi = skel.support_bounds()
-    grid = make_grid(skel.support_bounds(), max(hi[0] - lo[0], hi[1] - lo[1]) / args.pixels,
-                     layer_height=(hi[2] - lo[2]) / args.layers)
-    trace(skel, grid, method="interval")
+    if args.job == "render":
+        from slicer.rendering import render
+
+        def job():
+            return render(skel, size=(args.pixels, args.pixels), view="iso")
+
+        size = [args.pixels, args.pixels]
+    else:
+        from slicer.grid import make_grid
+        from slicer.slicing import trace
+
+        lo, hi = skel.support_bounds()
+        grid = make_grid(skel.support_bounds(), max(hi[0] - lo[0], hi[1] - lo[1]) / args.pixels,
+                         layer_height=(hi[2] - lo[2]) / args.layers)
+
+        def job():
+            return trace(skel, grid, method="interval")
+
+        size = [grid.width, grid.height, grid.layers]
+    job()
     n = _write_map(Path(f"/tmp/perf-{os.getpid()}.map"))
     t0 = time.perf_counter()
-    res = trace(skel, grid, method="interval")
+    res = job()
     print(json.dumps({"seconds": time.perf_counter() - t0, "evaluations": int(res.stats["evaluations"]),
-                      "functions": n, "grid": [grid.width, grid.height, grid.layers], "pid": os.getpid()}))
+                      "functions": n, "grid": size, "pid": os.getpid()}))
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python benchmarks/kernel_profile.py", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--job", choices=("trace", "render"), default="trace",
+                    help="trace (slicing, --pixels x --pixels x --layers) or render (--pixels square, iso view)")
     ap.add_argument("--model", default="microstructure")
     ap.add_argument("--pixels", type=int, default=256)
     ap.add_argument("--layers", type=int, default=512)
@@ -148,7 +165,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "perf.data"
         child = subprocess.run(["perf", "record", "-q", "-F", str(args.frequency), "-o", str(data), "--",
-                                sys.executable, str(Path(__file__).resolve()), "--child", "--model", args.model,
+                                sys.executable, str(Path(__file__).resolve()), "--child", "--job", args.job, "--model", args.model,
                                 "--pixels", str(args.pixels), "--layers", str(args.layers)],
                                env=env, capture_output=True, text=True)
         if child.returncode != 0:
@@ -160,10 +177,10 @@ def main(argv=None) -> int:
     Path(f"/tmp/perf-{job['pid']}.map").unlink(missing_ok=True)
     shares, jit = kernel_shares(report)
     out = {"command": machine.command_line("python benchmarks/kernel_profile.py", argv),
-           "benchmark": "kernel_profile", "model": args.model, "grid": job["grid"], "threads": args.threads,
-           "trace_seconds": job["seconds"], "evaluations": job["evaluations"], "jit_share_of_samples": jit,
+           "benchmark": "kernel_profile", "job": args.job, "model": args.model, "grid": job["grid"], "threads": args.threads,
+           "seconds": job["seconds"], "evaluations": job["evaluations"], "jit_share_of_samples": jit,
            "shares": shares, "machine": machine.describe()}
-    lines = [f"{args.model}, {'x'.join(map(str, job['grid']))}, {args.threads} thread(s): trace "
+    lines = [f"{args.job} {args.model}, {'x'.join(map(str, job['grid']))}, {args.threads} thread(s): "
              f"{job['seconds']:.2f} s, {job['evaluations']:,} evaluations; kernels hold {jit:.1%} of all "
              f"samples (the rest: compiling)", f"{'kernel function':<40}{'share':>8}"]
     lines += [f"{name:<40}{v:>8.1%}" for name, v in shares.items() if v >= 0.002]
