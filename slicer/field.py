@@ -83,6 +83,23 @@ class PointGrid:
     ids: np.ndarray      # (nnz,) int64
 
 
+def _uniform_cells(lo: np.ndarray, hi: np.ndarray, fraction: float, max_cells: int, budget: int):
+    """A uniform grid over boxes ``lo``..``hi`` ((n, d) each, d = 2 or 3): cells of
+    ``fraction`` times the median box's largest side, coarsened by 1.25 until there
+    are at most ``max_cells`` of them and the boxes' lists hold at most ``budget``
+    entries. Returns its origin and cell size, (d,) float64, and its cells per axis,
+    (d,) int64."""
+    blo = lo.min(axis=0)
+    ext = np.maximum(hi.max(axis=0) - blo, 1e-300)
+    root = np.cbrt if lo.shape[1] == 3 else np.sqrt
+    cell = max(fraction * float(np.median((hi - lo).max(axis=1))), float(root(np.prod(ext) / max_cells)))
+    dims = np.maximum(1, np.ceil(ext / cell).astype(np.int64))
+    while np.prod(dims) > max_cells or (np.prod(dims) > 1 and _binned_entries(lo, hi, ext, dims) > budget):
+        cell *= 1.25
+        dims = np.maximum(1, np.ceil(ext / cell).astype(np.int64))
+    return blo, ext / dims, dims
+
+
 _GRID_CACHE: "weakref.WeakKeyDictionary[Skeleton, tuple[np.ndarray, PointGrid]]" = weakref.WeakKeyDictionary()
 
 
@@ -110,17 +127,7 @@ def point_grid(skel: Skeleton, max_cells: int = 2_000_000) -> tuple[np.ndarray, 
         return hit
     table = segment_table(skel)
     lo, hi = support_boxes(skel)
-    blo = lo.min(axis=0)
-    bhi = hi.max(axis=0)
-    ext = np.maximum(bhi - blo, 1e-300)
-    diam = np.median((hi - lo).max(axis=1))
-    cell = max(0.5 * diam, float(np.cbrt(np.prod(ext) / max_cells)))
-    dims = np.maximum(1, np.ceil(ext / cell).astype(np.int64))
-    budget = max(32 * skel.n_segments, max_cells)
-    while np.prod(dims) > max_cells or (np.prod(dims) > 1 and _binned_entries(lo, hi, ext, dims) > budget):
-        cell *= 1.25
-        dims = np.maximum(1, np.ceil(ext / cell).astype(np.int64))
-    cellv = ext / dims
+    blo, cellv, dims = _uniform_cells(lo, hi, 0.5, max_cells, max(32 * skel.n_segments, max_cells))
     order = np.arange(skel.n_segments, dtype=np.int64)
     offsets, ids = bin_boxes(lo, hi, order, blo, cellv, dims)
     grid = PointGrid(blo, cellv, dims, offsets, ids)
@@ -202,15 +209,7 @@ def plane_grid(skel: Skeleton, z: float, max_cells: int = 250_000) -> PointGrid:
         grid = PointGrid(np.array([0.0, 0.0, z - 1.0]), np.ones(3), np.ones(3, np.int64),
                          np.zeros(2, np.int64), ids)
     else:
-        blo = lo.min(axis=0)
-        ext = np.maximum(hi.max(axis=0) - blo, 1e-300)
-        cell = max(0.125 * float(np.median((hi - lo).max(axis=1))), float(np.sqrt(np.prod(ext) / max_cells)))
-        dims = np.maximum(1, np.ceil(ext / cell).astype(np.int64))
-        budget = max(32 * ids.size, max_cells)
-        while np.prod(dims) > max_cells or (np.prod(dims) > 1 and _binned_entries(lo, hi, ext, dims) > budget):
-            cell *= 1.25
-            dims = np.maximum(1, np.ceil(ext / cell).astype(np.int64))
-        cellv = ext / dims
+        blo, cellv, dims = _uniform_cells(lo, hi, 0.125, max_cells, max(32 * ids.size, max_cells))
         blo3 = np.column_stack([lo, np.full(ids.size, z)])
         bhi3 = np.column_stack([hi, np.full(ids.size, z)])
         origin = np.array([blo[0], blo[1], z - 1.0])
