@@ -187,12 +187,12 @@ def test_binned_bounds_are_the_bounds_over_every_segment_of_the_plane():
         r = rmax * rng.random(k) ** 3
         args = (z, r, skel.degree, skel.sigma, skel.normalisation)
         want = disc_bounds(table, ids, cx, cy, *args)
-        got = disc_bounds_binned(table, offsets, lists, bx0, by0, side, bnx, bny, cx, cy, *args)
+        got = disc_bounds_binned(table, (offsets, lists, bx0, by0, side, bnx, bny), cx, cy, *args)
         for a, b in zip(want, got):
             assert np.array_equal(a, b)
         assert (want[0] > 0).any() and (want[0] == 0).any()   # discs both near and far from the struts
         want = ridge_bounds(table, ids, cx, cy, *args)
-        got = ridge_bounds_binned(table, offsets, lists, bx0, by0, side, bnx, bny, cx, cy, *args)
+        got = ridge_bounds_binned(table, (offsets, lists, bx0, by0, side, bnx, bny), cx, cy, *args)
         for a, b in zip(want, got):
             assert np.array_equal(a, b)
         assert len(set(zip(want[0].round(6), want[1].round(6)))) > 2        # frames of several struts

@@ -310,7 +310,7 @@ def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm, pieces=PIECES):
         Upper bound of ``F`` over each disc (the integrand ``k(s)/tau`` is at
         most ``k(s_lo)/tau_min`` on each piece).
     """
-    return disc_bounds_binned(seg, *single_bin(ids), cx, cy, z, r, n, sigma, norm, pieces)
+    return disc_bounds_binned(seg, single_bin(ids), cx, cy, z, r, n, sigma, norm, pieces)
 
 
 def single_bin(ids):
@@ -330,16 +330,18 @@ def square_of(x, y, x0, y0, side, nx, ny):
 
 
 @parallel_kernel
-def disc_bounds_binned(seg, offsets, bins, x0, y0, side, nx, ny, cx, cy, z, r, n, sigma, norm, pieces=PIECES):
+def disc_bounds_binned(seg, squares, cx, cy, z, r, n, sigma, norm, pieces=PIECES):
     """:func:`disc_bounds` with the plane's segments binned on a grid of
-    ``nx x ny`` squares of side ``side`` from ``(x0, y0)``: each disc looks
-    only at the list of the square holding its centre, ``bins[offsets[c] :
-    offsets[c + 1]]`` (``c = iy * nx + ix``, segment order kept), which must
-    hold every segment whose support can reach a disc centred in the square
-    (its support box grown by the largest radius); every centre must lie in
-    the grid. The bounds are those of :func:`disc_bounds` over all the
-    plane's segments, to the bit.
+    squares, ``squares = (offsets, bins, x0, y0, side, nx, ny)``: ``nx x ny``
+    squares of side ``side`` from ``(x0, y0)``. Each disc looks only at the
+    list of the square holding its centre, ``bins[offsets[c] : offsets[c + 1]]``
+    (``c = iy * nx + ix``, segment order kept), which must hold every segment
+    whose support can reach a disc centred in the square (its footprint in
+    the plane grown by the largest radius); every centre must lie in the
+    grid. The bounds are those of :func:`disc_bounds` over all the plane's
+    segments, to the bit.
     """
+    offsets, bins, x0, y0, side, nx, ny = squares
     k1 = kprime_max(n, sigma, norm)
     k2 = kernel_curvature_max(n, sigma, norm)
     seg = borrow(seg)        # slicer._kernels.borrow: arguments outlive the call

@@ -200,13 +200,14 @@ def ridge_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
     FUV : (c,) float64, 1/mm²
         Upper bound of ``|∂²F/∂u∂v|`` over each disc.
     """
-    return ridge_bounds_binned(seg, *single_bin(ids), cx, cy, z, r, n, sigma, norm)
+    return ridge_bounds_binned(seg, single_bin(ids), cx, cy, z, r, n, sigma, norm)
 
 
 @parallel_kernel
-def ridge_bounds_binned(seg, offsets, bins, x0, y0, side, nx, ny, cx, cy, z, r, n, sigma, norm):
+def ridge_bounds_binned(seg, squares, cx, cy, z, r, n, sigma, norm):
     """:func:`ridge_bounds` with the plane's segments binned as for
-    :func:`slicer._kernels.cellbounds.disc_bounds_binned` (the same bins serve both)."""
+    :func:`slicer._kernels.cellbounds.disc_bounds_binned` (the same squares serve both)."""
+    offsets, bins, x0, y0, side, nx, ny = squares
     k1 = kprime_max(n, sigma, norm)
     seg = borrow(seg)        # slicer._kernels.borrow: arguments outlive the call
     bins = borrow(bins)

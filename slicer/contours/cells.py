@@ -150,7 +150,7 @@ class _Bounds:
         sk = self.skel
         binned = self._binned(cx, cy, r)
         if binned is not None:
-            return disc_bounds_binned(self.table, *binned, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation,
+            return disc_bounds_binned(self.table, binned, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation,
                                       pieces)
         return disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation, pieces)
 
@@ -160,7 +160,7 @@ class _Bounds:
         sk = self.skel
         binned = self._binned(cx, cy, r)
         if binned is not None:
-            return ridge_bounds_binned(self.table, *binned, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
+            return ridge_bounds_binned(self.table, binned, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
         return ridge_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
 
     def ridge(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, taylor) -> np.ndarray:
