@@ -21,6 +21,7 @@ from slicer.contours.cells import COARSE_PIECES, IN, OUT, SIMPLE, _Bounds, _root
 from slicer.errors import SceneError
 from slicer.field import evaluate, evaluate_plane, plane_footprints, plane_grid, segment_table, support_boxes
 
+
 def _skeleton(rng: np.random.Generator, k: int, flat: bool, degree: int) -> Skeleton:
     """k struts from random nodes, radii 0.05-0.6 mm, tapered or not; with
     ``flat``, the first one lies in a horizontal plane."""
@@ -46,13 +47,17 @@ def _plane_points(skel: Skeleton, z: float, rng: np.random.Generator, k: int) ->
 def test_a_plane_point_gets_the_field_of_evaluate_to_the_bit(k, flat, degree, where, seed):
     rng = np.random.default_rng(seed)
     skel = _skeleton(rng, k, flat, degree)
-    lo, hi = support_boxes(skel)
-    z = lo[:, 2].min() + where * (hi[:, 2].max() - lo[:, 2].min())
-    if flat and seed % 3 == 0:
-        z = float(skel.nodes[0, 2])                 # the plane of the strut lying in it
+    # the plane through a point of the first strut's axis (the plane of that strut
+    # when it lies flat), points all over it and around that axis point
+    a, b = skel.endpoints()
+    q = a[0] + where * (b[0] - a[0])
+    z = float(q[2])
     p = _plane_points(skel, z, rng, 3000)
+    reach = skel.sigma * skel.radii[0].max()
+    p[:500, :2] = q[:2] + rng.uniform(-reach, reach, (500, 2))
     f, g = evaluate(skel, p, gradient=True)
     f2, g2 = evaluate_plane(skel, p, gradient=True)
+    assert (f > 0).any()
     assert np.array_equal(f, f2) and np.array_equal(g, g2)
     f3, g3 = evaluate_plane(skel, p)
     assert np.array_equal(f, f3) and g3 is None
