@@ -94,12 +94,12 @@ def _ipow(x, k):
 
 
 @inline_kernel
-def _slope_sup(s, w1, n, sigma, norm, k1):
-    """``sup |k'(s')|`` over ``s' >= s`` (``s < sigma``; ``w1 = (1 − s²/σ²)^(n/2−1)``):
-    |k'| rises up to d* = sigma/sqrt(n-1), then falls."""
+def _slope_sup(s, w1, n, sigma, cn, k1):
+    """``sup |k'(s')|`` over ``s' >= s`` (``s < sigma``; ``w1 = (1 − s²/σ²)^(n/2−1)``,
+    ``cn = N n/σ²``): |k'| rises up to d* = sigma/sqrt(n-1), then falls."""
     if s * s * (n - 1.0) <= sigma * sigma:
         return k1
-    return norm * n * s / (sigma * sigma) * w1
+    return cn * s * w1
 
 
 @inline_kernel
@@ -135,7 +135,10 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces)
     ``tau_min <= tau <= tau_max`` and the in-plane part of the unit vector
     ``e = (p − q)/‖p − q‖`` is at most ``pe = (max |P(c − q)| + r)/(dist − r)``.
     Pieces whose nearest point is beyond the support (``s_lo >= sigma``) add
-    nothing.
+    nothing. Neighbouring pieces share their end ``ta + j (tb − ta)/pieces``
+    and its distances from ``c``; and its
+    radius; each piece costs two divisions (by its end's radius and by
+    ``dist − r``) and two or three square roots.
 
     Returns ``g`` (in-plane slope), ``h`` (the integrand's Hessian norm),
     ``f`` (value), and the three sums of the split Hessian (docs/math.md §10):
@@ -153,51 +156,62 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces)
     tau0 = seg[i, TAU0]
     d = seg[i, DELTA]
     m = n // 2
-    cn = norm * n / (sigma * sigma)
+    inv_s2 = 1.0 / (sigma * sigma)
+    cn = norm * n * inv_s2
     step = (tb - ta) / pieces
     g = h = f = bh = bl = a = ap = 0.0
     # distance of c from the axis line: every p of the disc is within it + r
     rho = math.sqrt(max(wx * wx + wy * wy + wz * wz - wu * wu, 0.0)) * (1.0 + SLACK) + r
-    # squared in-plane and full distances of c from the piece's start (the previous piece's end)
+    # squared in-plane distance and distance of c from the piece's start (the previous piece's end)
     q0, Q0 = _end_distances(wx, wy, wz, ux, uy, uz, ta)
+    D0 = math.sqrt(Q0)
+    ita = 1.0 / (tau0 + d * ta)         # 1 / radius at the piece's start
     for j in range(pieces):
         t0 = ta + j * step
-        t1 = tb if j == pieces - 1 else t0 + step
+        t1 = tb if j == pieces - 1 else ta + (j + 1) * step
         tau_lo = tau0 + d * t0
         tau_hi = tau0 + d * t1
         if not tau_lo > 0.0:
             return np.inf, np.inf, np.inf, np.inf, 0.0, np.inf, np.inf
-        tc = min(max(wu, t0), t1)
-        dist = math.sqrt(_end_distances(wx, wy, wz, ux, uy, uz, tc)[1])
-        # farthest point of the piece from c, and its largest in-plane offset
-        # (both convex in t: at an end of the piece)
         q1, Q1 = _end_distances(wx, wy, wz, ux, uy, uz, t1)
-        pxy = math.sqrt(max(q0, q1))
-        dmax = math.sqrt(max(Q0, Q1))
-        q0, Q0 = q1, Q1
+        D1 = math.sqrt(Q1)
+        # nearest point of the piece to c: the foot of c when on it, else an end;
+        # farthest point and largest in-plane offset: at an end (convex in t)
+        if wu <= t0:
+            dist = D0
+        elif wu >= t1:
+            dist = D1
+        else:
+            dist = math.sqrt(_end_distances(wx, wy, wz, ux, uy, uz, wu)[1])
+        dmax = max(D0, D1)
+        qmax = max(q0, q1)
+        q0, D0 = q1, D1
         dlo = dist * (1.0 - SLACK) - r
-        s_lo = max(dlo, 0.0) / (tau_hi * (1.0 + SLACK))
+        it = ita
+        ith = 1.0 / tau_hi
+        ita = ith
+        s_lo = max(dlo, 0.0) * ith * (1.0 - SLACK)
         if s_lo >= sigma:
             continue
         pe = pp = 1.0
         if dlo > 0.0:
-            pe = min(1.0, (pxy * (1.0 + SLACK) + r) / dlo)
-            pp = min(1.0, rho / dlo)
-        s_hi = (dmax * (1.0 + SLACK) + r) / (tau_lo * (1.0 - SLACK))
+            idl = 1.0 / dlo
+            pe = min(1.0, (math.sqrt(qmax) * (1.0 + SLACK) + r) * idl)
+            pp = min(1.0, rho * idl)
+        s_hi = (dmax * (1.0 + SLACK) + r) * it * (1.0 + SLACK)
         ln = t1 - t0
-        it = 1.0 / tau_lo
         it3 = it * it * it
         # k falls with s: k(s') <= k(s_lo); powers of w = 1 - s_lo²/σ²
-        u_lo = s_lo * s_lo / (sigma * sigma)
+        u_lo = s_lo * s_lo * inv_s2
         w = 1.0 - u_lo
         w1 = _ipow(w, m - 1)
-        g += ln * pe * _slope_sup(s_lo, w1, n, sigma, norm, k1) * it * it
+        g += ln * pe * _slope_sup(s_lo, w1, n, sigma, cn, k1) * it * it
         h += ln * _curvature_sup(u_lo, w1, m, cn, k2) * it3
         f += ln * norm * w1 * w * it
         if m >= 2:
-            u_hi = min(s_hi * s_hi / (sigma * sigma), 1.0)
+            u_hi = min(s_hi * s_hi * inv_s2, 1.0)
             bh += ln * cn * w1 * it3
-            bl += ln * cn * _ipow(1.0 - u_hi, m - 1) / (tau_hi * tau_hi * tau_hi)
+            bl += ln * cn * _ipow(1.0 - u_hi, m - 1) * (ith * ith * ith)
             sec = ln * cn * _second_sup(u_lo, u_hi, m) * it3
             a += sec * pe * pe
             ap += sec * pp * pp
@@ -221,6 +235,7 @@ def _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
     """Upper bound over the disc of ``|∇ψ(p − a)| + |∇ψ(p − b)|``, ψ the integrand
     at the segment's ends ``a`` and ``b`` (radii τ0 and τ1)."""
     L = seg[i, LEN]
+    cn = norm * n / (sigma * sigma)
     out = 0.0
     for end in range(2):
         t = 0.0 if end == 0 else L
@@ -232,7 +247,7 @@ def _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
         s_lo = max(d * (1.0 - SLACK) - r, 0.0) / (tau * (1.0 + SLACK))
         if s_lo < sigma:
             w1 = _ipow(1.0 - s_lo * s_lo / (sigma * sigma), n // 2 - 1)
-            out += _slope_sup(s_lo, w1, n, sigma, norm, k1) / (tau * tau)
+            out += _slope_sup(s_lo, w1, n, sigma, cn, k1) / (tau * tau)
     return out
 
 

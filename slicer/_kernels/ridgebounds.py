@@ -83,15 +83,18 @@ def _piece_weights(wx, wy, wz, ax, ay, az, tau_lo, tau_hi, t0, t1, r, sigma, m, 
     dmax = math.sqrt(max(_end_distances(wx, wy, wz, ax, ay, az, t0)[1],
                          _end_distances(wx, wy, wz, ax, ay, az, t1)[1]))
     dlo = dist * (1.0 - SLACK) - r
-    s_lo = max(dlo, 0.0) / (tau_hi * (1.0 + SLACK))
+    ith = 1.0 / tau_hi
+    s_lo = max(dlo, 0.0) * ith * (1.0 - SLACK)
     if s_lo >= sigma:
         return dlo, -1.0, 0.0, 0.0
-    s_hi = (dmax * (1.0 + SLACK) + r) / (tau_lo * (1.0 - SLACK))
-    u_lo = s_lo * s_lo / (sigma * sigma)
-    u_hi = min(s_hi * s_hi / (sigma * sigma), 1.0)
+    it = 1.0 / tau_lo
+    s_hi = (dmax * (1.0 + SLACK) + r) * it * (1.0 + SLACK)
+    inv_s2 = 1.0 / (sigma * sigma)      # loop-invariant where this is inlined
+    u_lo = s_lo * s_lo * inv_s2
+    u_hi = min(s_hi * s_hi * inv_s2, 1.0)
     ln = (t1 - t0) * cn
-    it3 = 1.0 / (tau_lo * tau_lo * tau_lo)
-    return (dlo, ln * _second_sup(u_lo, u_hi, m) * it3, ln * _ipow(1.0 - u_hi, m - 1) / (tau_hi * tau_hi * tau_hi),
+    it3 = it * it * it
+    return (dlo, ln * _second_sup(u_lo, u_hi, m) * it3, ln * _ipow(1.0 - u_hi, m - 1) * (ith * ith * ith),
             ln * _ipow(1.0 - u_lo, m - 1) * it3)
 
 
@@ -122,7 +125,7 @@ def _segment_frame(seg, i, cx, cy, cz, r, ta, tb, ux, uy, n, sigma, norm, k1):
     guu = gvv = guv = tuu = tvv = tuv = bl = bh = 0.0
     for j in range(PIECES):
         t0 = ta + j * step
-        t1 = tb if j == PIECES - 1 else t0 + step
+        t1 = tb if j == PIECES - 1 else ta + (j + 1) * step
         tau_lo = seg[i, TAU0] + d * t0
         if not tau_lo > 0.0:
             return np.inf, np.inf, np.inf, np.inf
