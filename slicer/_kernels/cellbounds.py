@@ -135,10 +135,9 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces)
     ``tau_min <= tau <= tau_max`` and the in-plane part of the unit vector
     ``e = (p − q)/‖p − q‖`` is at most ``pe = (max |P(c − q)| + r)/(dist − r)``.
     Pieces whose nearest point is beyond the support (``s_lo >= sigma``) add
-    nothing. Neighbouring pieces share their end ``ta + j (tb − ta)/pieces``
-    and its distances from ``c``; and its
-    radius; each piece costs two divisions (by its end's radius and by
-    ``dist − r``) and two or three square roots.
+    nothing. Neighbouring pieces share their end ``ta + j (tb − ta)/pieces``,
+    its distances from ``c`` and its radius: a piece costs two divisions (by
+    its end's radius and by ``dist − r``) and two or three square roots.
 
     Returns ``g`` (in-plane slope), ``h`` (the integrand's Hessian norm),
     ``f`` (value), and the three sums of the split Hessian (docs/math.md §10):
@@ -173,16 +172,7 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces)
         tau_hi = tau0 + d * t1
         if not tau_lo > 0.0:
             return np.inf, np.inf, np.inf, np.inf, 0.0, np.inf, np.inf
-        q1, Q1 = _end_distances(wx, wy, wz, ux, uy, uz, t1)
-        D1 = math.sqrt(Q1)
-        # nearest point of the piece to c: the foot of c when on it, else an end;
-        # farthest point and largest in-plane offset: at an end (convex in t)
-        if wu <= t0:
-            dist = D0
-        elif wu >= t1:
-            dist = D1
-        else:
-            dist = math.sqrt(_end_distances(wx, wy, wz, ux, uy, uz, wu)[1])
+        q1, D1, dist = _piece_reach(wx, wy, wz, ux, uy, uz, wu, t0, t1, D0)
         dmax = max(D0, D1)
         qmax = max(q0, q1)
         q0, D0 = q1, D1
@@ -218,6 +208,28 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces)
     if m < 2:
         bh = np.inf
     return g, h, f, bh, bl, a, ap
+
+
+@inline_kernel
+def _piece_reach(wx, wy, wz, ux, uy, uz, wu, t0, t1, D0):
+    """Distances from ``c`` (``w = c − a``, foot at arc length ``wu``) to the axis
+    piece ``[t0, t1]``, given ``D0``, its distance to ``q(t0)``.
+
+    Returns
+    -------
+    q1, D1 : float
+        Squared in-plane distance and distance to ``q(t1)``.
+    dist : float
+        Distance to the piece: to the foot when it lies on the piece, else to
+        the nearer end (the distance is convex in t).
+    """
+    q1, Q1 = _end_distances(wx, wy, wz, ux, uy, uz, t1)
+    D1 = math.sqrt(Q1)
+    if wu <= t0:
+        return q1, D1, D0
+    if wu >= t1:
+        return q1, D1, D1
+    return q1, D1, math.sqrt(_end_distances(wx, wy, wz, ux, uy, uz, wu)[1])
 
 
 @inline_kernel
