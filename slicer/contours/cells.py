@@ -38,6 +38,8 @@ import numpy as np
 
 from .._kernels.binning import bin_boxes
 from .._kernels.cellbounds import PIECES, SLACK, disc_bounds, disc_bounds_binned
+from .._kernels.cellstate import (IN, ONEDIR, OUT, SIMPLE, SMALL, THIN, crest_candidates, judge_cells,
+                                  settle_from_parent)
 from .._kernels.contours import chain_rings
 from .._kernels.ridgebounds import ridge_bounds, ridge_bounds_binned
 from ..errors import OptionError
@@ -69,8 +71,6 @@ THIN_FRACTION = 0.25
 #: smallest tolerance as a multiple of the float64 spacing at the scene's coordinates
 TOL_ULPS = 1024
 
-# leaf states
-OUT, IN, SIMPLE, ONEDIR, SMALL, THIN = 0, 1, 2, 3, 4, 5
 
 
 def check_resolvable(skel: Skeleton, tol: float, name: str = "--contour-tol") -> float:
@@ -279,34 +279,11 @@ class _Bounds:
             p = np.column_stack([cx[reach], cy[reach], np.full(reach.size, self.z)])
             f[reach], g[reach] = _field(self.skel, p, gradient=True)
             self.evaluations += reach.size
-        gx, gy = g[:, 0], g[:, 1]
-        gn = np.hypot(gx, gy)
-        with np.errstate(invalid="ignore", over="ignore"):
-            spread = r * np.minimum(G, gn + 0.5 * r * H)
-            spread = np.where(np.isnan(spread), np.inf, spread)
-            fs = FIELD_SLACK * (1.0 + np.abs(f))
-            gs = FIELD_SLACK * (gn + G) + r * H
-            gs = np.where(np.isnan(gs), np.inf, gs)
-        state = np.full(cx.size, -1, np.int8)
-        state[(f + spread + fs < 1.0) | far] = OUT
-        state[f - spread - fs > 1.0] = IN
-        mx = np.abs(gx) > gs
-        my = np.abs(gy) > gs
-        state[(state < 0) & mx & my] = SIMPLE
-        # monotone in one direction: along the other one, an edge of side
-        # s = r sqrt(2) may hide a cap of depth <= H s^2 / (8 g_min) (F - 1
-        # is <= 0 at the ends of the sub-edge and |F''| <= H along it)
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            gmin = np.maximum(np.abs(gx), np.abs(gy)) - gs
-            cap = H * r * r / (4.0 * gmin)
-        state[(state < 0) & (mx | my) & (gmin > 0) & (cap <= 0.5 * self.tol)] = ONEDIR
-        # curvature of the contour in the cell: |F_tt| / |grad F| <= H / (least |grad_xy F|)
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            glo = gn - gs
-            kappa = np.where(glo > 0, H / np.where(glo > 0, glo, 1.0), np.inf)
-            slope = np.maximum(np.column_stack([np.abs(gx), np.abs(gy)]) - gs[:, None], 0.0)
-        slope[~np.isfinite(slope)] = 0.0
-        return state, kappa, slope, (f, np.column_stack([gx, gy]), G, H, U)
+        # the states, the contour's curvature bound |F_tt| / |grad F| <= H / (least
+        # |grad_xy F|) and the slope bounds, in one compiled pass (docs/contours.md, step 2)
+        g2 = np.ascontiguousarray(g[:, :2])
+        state, kappa, slope = judge_cells(f, g2, G, H, far, r, self.tol, FIELD_SLACK)
+        return state, kappa, slope, (f, g2, G, H, U)
 
     @staticmethod
     def settle_children(taylor, r: float, offset: np.ndarray) -> np.ndarray:
@@ -325,15 +302,8 @@ class _Bounds:
             Child centre minus parent centre.
         """
         f, g, G, H = taylor[:4]
-        gn = np.hypot(g[:, 0], g[:, 1])
-        with np.errstate(invalid="ignore", over="ignore"):
-            lin = f + g[:, 0] * offset[:, 0] + g[:, 1] * offset[:, 1]
-            spread = r * gn + 2.0 * H * r * r
-            slack = FIELD_SLACK * (1.0 + np.abs(f) + 2.0 * r * (gn + G))
-        state = np.full(f.size, -1, np.int8)
-        state[lin + spread + slack < 1.0] = OUT
-        state[lin - spread - slack > 1.0] = IN
-        return state
+        return settle_from_parent(f, np.ascontiguousarray(g), G, H, float(r), np.ascontiguousarray(offset),
+                                  FIELD_SLACK)
 
 
 def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int, levels: int):
@@ -431,12 +401,8 @@ def _crests(bounds: _Bounds, cx: np.ndarray, cy: np.ndarray, rr: float, state: n
     there what a crest cell allows, ``1 + c thin²/8`` with ``c <= H``: F is at
     least ``F(c) + g t − H t²/2`` a step ``t = min(g/H, r)`` up the gradient."""
     f, g, G, H = taylor[:4]
-    gn = np.hypot(g[:, 0], g[:, 1])
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        t = np.minimum(gn / H, rr)
-        low = f + gn * t - 0.5 * H * t * t - FIELD_SLACK * (1.0 + np.abs(f) + rr * (gn + G))
-        try_ = np.flatnonzero((state < 0) & (gn <= rr * H * (1.0 + SLACK) + FIELD_SLACK * (gn + G))
-                              & ~(low > 1.0 + 0.125 * H * bounds.thin ** 2))
+    try_ = np.flatnonzero(crest_candidates(state, f, np.ascontiguousarray(g), G, H, float(rr), bounds.thin,
+                                           FIELD_SLACK, SLACK))
     if try_.size == 0:
         return state
     out = state.copy()
@@ -687,14 +653,14 @@ def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray
     rings = [verts[order[starts[q]:starts[q + 1]]] for q in range(starts.size - 1)]
     if certified is not None:
         lk = act[exit_leaf]                        # the leaf each chord crosses
-        kq = np.where(state[lk] == SIMPLE, kappa[lk], np.inf)
-        for q in range(starts.size - 1):
-            ids_q = order[starts[q]:starts[q + 1]]
-            r_q = verts[ids_q]
-            ell = np.hypot(*(np.roll(r_q, -1, axis=0) - r_q).T)
-            k_q = kq[ids_q]
-            with np.errstate(invalid="ignore", over="ignore"):
-                certified.append((SAGITTA * ell * ell * k_q <= CHORD_FRACTION * tol) & (ell * k_q <= 1.0))
+        kq = np.where(state[lk] == SIMPLE, kappa[lk], np.inf)[order]
+        ring = np.repeat(np.arange(starts.size - 1), np.diff(starts))
+        rv = verts[order]
+        step = rv[_next_in_group(ring)] - rv        # chord i -> i + 1 of each ring, cyclically
+        ell = np.hypot(step[:, 0], step[:, 1])
+        with np.errstate(invalid="ignore", over="ignore"):
+            ok = (SAGITTA * ell * ell * kq <= CHORD_FRACTION * tol) & (ell * kq <= 1.0)
+        certified.extend(ok[starts[q]:starts[q + 1]] for q in range(starts.size - 1))
     return rings
 
 
