@@ -61,7 +61,11 @@ def support_boxes(skel: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     lo, hi : (m, 3) float64, mm
+        Read-only (cached per skeleton: each layer plane asks again).
     """
+    hit = _BOX_CACHE.get(skel)
+    if hit is not None:
+        return hit
     a, b = skel.endpoints()
     ra = skel.sigma * skel.radii[:, 0:1]
     rb = skel.sigma * skel.radii[:, 1:2]
@@ -69,7 +73,14 @@ def support_boxes(skel: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     hi = np.maximum(a + ra, b + rb)
     # pad outward so a point on a box face is binned in every cell it may need
     pad = 1e-9 * (np.abs(lo) + np.abs(hi) + (hi - lo))
-    return lo - pad, hi + pad
+    lo, hi = lo - pad, hi + pad
+    lo.setflags(write=False)
+    hi.setflags(write=False)
+    _BOX_CACHE[skel] = (lo, hi)
+    return lo, hi
+
+
+_BOX_CACHE: "weakref.WeakKeyDictionary[Skeleton, tuple[np.ndarray, np.ndarray]]" = weakref.WeakKeyDictionary()
 
 
 @dataclass(frozen=True)
@@ -244,11 +255,17 @@ def evaluate_plane(skel: Skeleton, points: np.ndarray, gradient: bool = False):
     g : (k, 3) float64, 1/mm, or None
     """
     p = as_points(points)
+    if p.shape[0] and not np.all(p[:, 2] == p[0, 2]):
+        raise SceneError("evaluate_plane: the points do not share one z")
+    return plane_field(skel, p, gradient)
+
+
+def plane_field(skel: Skeleton, p: np.ndarray, gradient: bool = False):
+    """:func:`evaluate_plane` of points the caller made: a C-contiguous
+    (k, 3) float64 array of finite points with one z (not checked)."""
     if p.shape[0] == 0 or skel.n_segments == 0:
         return np.zeros(p.shape[0]), (np.zeros_like(p) if gradient else None)
     z = float(p[0, 2])
-    if not np.all(p[:, 2] == z):
-        raise SceneError("evaluate_plane: the points do not share one z")
     table = point_grid(skel)[0]
     grid = plane_grid(skel, z)
     f, g = field_at_points(p, table, grid.offsets, grid.ids, grid.origin, grid.cell, grid.dims,
@@ -312,4 +329,4 @@ def evaluate(skel: Skeleton, points, gradient: bool = False, blend: str = "sum")
     return f, (g if gradient else None)
 
 
-__all__ = ["evaluate", "evaluate_plane", "plane_grid", "plane_footprints", "segment_table", "support_boxes", "point_grid", "PointGrid", "as_points"]
+__all__ = ["evaluate", "evaluate_plane", "plane_field", "plane_grid", "plane_footprints", "segment_table", "support_boxes", "point_grid", "PointGrid", "as_points"]

@@ -7,6 +7,7 @@ contiguous arrays straight to the compiled kernels.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -125,7 +126,7 @@ class Skeleton:
         """Number of segments."""
         return int(self.segments.shape[0])
 
-    @property
+    @cached_property
     def normalisation(self) -> float:
         """Kernel normalisation N for iso-value 1 (see :func:`kernel_normalisation`)."""
         return kernel_normalisation(self.degree, self.sigma)

@@ -68,19 +68,24 @@ def test_judge_cells_matches_the_numpy_steps(seed):
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_settle_from_parent_matches_the_numpy_steps(seed):
-    f, g, G, H, _, _ = random_cells(seed)
+    f, g, G, H, _, _ = random_cells(seed, 1000)
     rng = np.random.default_rng(seed + 10)
     r = 0.01
-    offset = np.ascontiguousarray(rng.uniform(-r, r, (f.size, 2)))
-    gn = np.hypot(g[:, 0], g[:, 1])
+    pcx, pcy = rng.uniform(-5, 5, f.size), rng.uniform(-5, 5, f.size)
+    # four children per parent, in parent order, each within the parent's cell
+    cx = np.repeat(pcx, 4) + np.tile([-0.5, 0.5, -0.5, 0.5], f.size) * r
+    cy = np.repeat(pcy, 4) + np.tile([-0.5, -0.5, 0.5, 0.5], f.size) * r
+    F, Gr, GG, HH = (np.repeat(a, 4, axis=0) for a in (f, g, G, H))
+    offset = np.column_stack([cx - np.repeat(pcx, 4), cy - np.repeat(pcy, 4)])
+    gn = np.hypot(Gr[:, 0], Gr[:, 1])
     with np.errstate(invalid="ignore", over="ignore"):
-        lin = f + g[:, 0] * offset[:, 0] + g[:, 1] * offset[:, 1]
-        spread = r * gn + 2.0 * H * r * r
-        slack = SLACK * (1.0 + np.abs(f) + 2.0 * r * (gn + G))
-    want = np.full(f.size, -1, np.int8)
+        lin = F + Gr[:, 0] * offset[:, 0] + Gr[:, 1] * offset[:, 1]
+        spread = r * gn + 2.0 * HH * r * r
+        slack = SLACK * (1.0 + np.abs(F) + 2.0 * r * (gn + GG))
+    want = np.full(F.size, -1, np.int8)
     want[lin + spread + slack < 1.0] = OUT
     want[lin - spread - slack > 1.0] = IN
-    got = settle_from_parent(f, g, G, H, r, offset, SLACK)
+    got = settle_from_parent(f, g, G, H, r, cx, cy, (pcx, pcy), SLACK)
     assert np.array_equal(got, want)
     assert set(np.unique(got).tolist()) == {-1, OUT, IN}
 

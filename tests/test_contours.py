@@ -246,3 +246,12 @@ def test_slice_writes_geojson_and_json_contours(tmp_path):
     lay = d["layers"][len(d["layers"]) // 2]
     assert {"layer", "z", "polygons"} <= set(lay)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]     # no temporary leftovers
+
+
+def test_signed_areas_of_known_rings():
+    from slicer.contours import signed_areas
+
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
+    tri = np.array([[0.0, 0.0], [0.0, 3.0], [4.0, 0.0]])          # clockwise
+    assert signed_areas([square, tri, square + 10.0]).tolist() == [2.0, -6.0, 2.0]
+    assert signed_areas([]).shape == (0,)

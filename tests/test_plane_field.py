@@ -178,3 +178,14 @@ def test_cheap_bounds_first_settle_cells_as_the_full_ones(model, z, div):
     assert ((cheap[0] == IN) | (cheap[0] == OUT)).sum() > 0.3 * cx.size
     if div > 1:
         assert ((cheap[0] == SIMPLE) & ~np.isclose(cheap[1], kappa2, rtol=1e-3)).any()
+
+
+def test_support_boxes_are_computed_once_per_skeleton_and_read_only():
+    skel = load_sample("octet_2x2x2")
+    lo, hi = support_boxes(skel)
+    again = support_boxes(skel)
+    assert again[0] is lo and again[1] is hi
+    with pytest.raises(ValueError):
+        lo[0, 0] = 0.0
+    other = Skeleton(skel.nodes.copy(), skel.segments.copy(), skel.radii * 2.0)
+    assert (support_boxes(other)[1] - support_boxes(other)[0] > hi - lo).all()

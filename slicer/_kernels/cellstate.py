@@ -112,7 +112,7 @@ def judge_cells(f, g, G, H, far, r, tol, slack):
 
 
 @kernel
-def settle_from_parent(f, g, G, H, r, offset, slack):
+def settle_from_parent(f, g, G, H, r, cx, cy, parent, slack):
     """IN, OUT or -1 of child cells from their parent's Taylor data: over the
     child's disc (radius ``r``, inside the parent's of radius ``2 r``), ``F``
     lies within ``r ‖g‖ + 2 H r²`` of the parent's linear model at the child's
@@ -120,24 +120,28 @@ def settle_from_parent(f, g, G, H, r, offset, slack):
 
     Parameters
     ----------
-    f, g, G, H : (c,), (c, 2), (c,), (c,) float64
-        The parents' field, in-plane gradient and disc bounds, one row per child.
+    f, g, G, H : (p,), (p, 2), (p,), (p,) float64
+        The parents' field, in-plane gradient and disc bounds.
     r : float, mm
-    offset : (c, 2) float64, mm
-        Child centre minus parent centre.
+    cx, cy : (4 p,) float64, mm
+        Child centres; child ``j``'s parent is ``j // 4``.
+    parent : ((p,) float64, (p,) float64), mm
+        Parent centres.
     slack : float
 
     Returns
     -------
-    (c,) int8
+    (4 p,) int8
     """
-    nc = f.shape[0]
+    px, py = parent
+    nc = cx.shape[0]
     state = np.empty(nc, np.int8)
     for j in range(nc):
-        gn = math.hypot(g[j, 0], g[j, 1])
-        lin = f[j] + g[j, 0] * offset[j, 0] + g[j, 1] * offset[j, 1]
-        spread = r * gn + 2.0 * H[j] * r * r
-        sl = slack * (1.0 + abs(f[j]) + 2.0 * r * (gn + G[j]))
+        k = j // 4
+        gn = math.hypot(g[k, 0], g[k, 1])
+        lin = f[k] + g[k, 0] * (cx[j] - px[k]) + g[k, 1] * (cy[j] - py[k])
+        spread = r * gn + 2.0 * H[k] * r * r
+        sl = slack * (1.0 + abs(f[k]) + 2.0 * r * (gn + G[k]))
         st = -1
         if lin + spread + sl < 1.0:
             st = OUT

@@ -58,3 +58,23 @@ def chain_rings(nxt):
             break
     starts[nr] = pos
     return order[:pos], starts[:nr + 1], status
+
+
+@kernel
+def ring_areas(xy, starts):
+    """Shoelace area of each ring, summed in vertex order: ring ``q`` is
+    ``xy[starts[q]:starts[q + 1]]``, (n, 2) float64, mm; returns (r,) float64,
+    mm² (positive: counter-clockwise)."""
+    nr = starts.shape[0] - 1
+    out = np.empty(nr)
+    for q in range(nr):
+        a = starts[q]
+        b = starts[q + 1]
+        s1 = 0.0
+        s2 = 0.0
+        for i in range(a, b):
+            j = i + 1 if i + 1 < b else a
+            s1 += xy[i, 0] * xy[j, 1]
+            s2 += xy[j, 0] * xy[i, 1]
+        out[q] = 0.5 * (s1 - s2)
+    return out

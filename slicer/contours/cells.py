@@ -286,24 +286,25 @@ class _Bounds:
         return state, kappa, slope, (f, g2, G, H, U)
 
     @staticmethod
-    def settle_children(taylor, r: float, offset: np.ndarray) -> np.ndarray:
+    def settle_children(taylor, r: float, cx: np.ndarray, cy: np.ndarray, centres) -> np.ndarray:
         """IN or OUT (else -1) of child cells from their parent's Taylor data, with no
         evaluation: over the child's disc (radius ``r``, inside the parent's disc of
         radius ``2 r``), ``F(p)`` lies within ``r ‖∇F(c)‖ + H (2 r)² / 2`` of the
-        parent's linear model at the child's centre ``c + offset``.
+        parent's linear model at the child's centre.
 
         Parameters
         ----------
         taylor : tuple
-            The parents' ``(f, grad, G, H, U)`` (:meth:`classify`), one row per child.
+            The parents' ``(f, grad, G, H, U)`` (:meth:`classify`), one row per parent.
         r : float, mm
             Half diagonal of the children (with its slack).
-        offset : (c, 2) float64, mm
-            Child centre minus parent centre.
+        cx, cy : (4 p,) float64, mm
+            Child centres, four per parent in parent order.
+        centres : ((p,) float64, (p,) float64), mm
+            The parents' centres.
         """
         f, g, G, H = taylor[:4]
-        return settle_from_parent(f, np.ascontiguousarray(g), G, H, float(r), np.ascontiguousarray(offset),
-                                  FIELD_SLACK)
+        return settle_from_parent(f, np.ascontiguousarray(g), G, H, float(r), cx, cy, centres, FIELD_SLACK)
 
 
 def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int, levels: int):
@@ -341,20 +342,22 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
         f = np.full(ix.size, np.nan)
         if parent is not None:            # children proven IN or OUT by their parent's data
             pc, taylor = parent
-            state = bounds.settle_children(taylor, rr, np.column_stack([cx - pc[:, 0], cy - pc[:, 1]]))
+            state = bounds.settle_children(taylor, rr, cx, cy, pc)
         rest = np.flatnonzero(state < 0)
+        # the parent of child j is j // 4 (four children per split cell, in order)
+        up = None if parent is None else rest // 4
         # (ix + 0.5) s is (ix unit + unit/2) h exactly (s = unit h, a power of two):
         # a split cell's centre is bit for bit its children's common corner
         inherited = None
         if parent is not None and s <= INHERIT_BELOW * bounds.tol:
             # small cells: the parent's bounds hold over the child's disc and are
             # nearly as tight there; new ones would cost more than they save
-            inherited = tuple(a[rest] for a in parent[1][2:])
+            inherited = tuple(a[up] for a in parent[1][2:])
         # larger cells: first with the parent's bounds; those left unresolved get their own
         # (the centre's value and gradient already known), so split cells carry their own
         st_r, kap_r, slo_r, taylor = bounds.classify(cx[rest], cy[rest], np.full(rest.size, rr),
                                                      inherited if inherited is not None or parent is None
-                                                     else tuple(a[rest] for a in parent[1][2:]))
+                                                     else tuple(a[up] for a in parent[1][2:]))
         if inherited is None and parent is not None:
             again = np.flatnonzero(st_r < 0)
             if again.size:
@@ -378,8 +381,7 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
             known.append((ix[split] * unit + unit // 2, iy[split] * unit + unit // 2, f[split]))
         # split cells were all classified (settled children are leaves): their Taylor data
         ks = np.flatnonzero(~done[rest])
-        parent = (np.repeat(np.column_stack([cx[rest[ks]], cy[rest[ks]]]), 4, axis=0),
-                  tuple(np.repeat(a[ks], 4, axis=0) for a in taylor))
+        parent = ((cx[rest[ks]], cy[rest[ks]]), tuple(a[ks] for a in taylor))
         ix = (2 * ix[split][:, None] + np.array([0, 1, 0, 1])).ravel()
         iy = (2 * iy[split][:, None] + np.array([0, 0, 1, 1])).ravel()
     X0 = np.concatenate([o[0] for o in out])

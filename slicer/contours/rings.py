@@ -5,13 +5,15 @@ import numpy as np
 import shapely
 from shapely.geometry.polygon import orient
 
+from .._kernels.contours import ring_areas
+
+
 def signed_areas(rings: list[np.ndarray]) -> np.ndarray:
     """Shoelace area of each ring, mm^2 (positive: counter-clockwise)."""
-    out = np.empty(len(rings))
-    for q, r in enumerate(rings):
-        x, y = r[:, 0], r[:, 1]
-        out[q] = 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
-    return out
+    if not rings:
+        return np.zeros(0)
+    starts = np.concatenate([[0], np.cumsum([r.shape[0] for r in rings])]).astype(np.int64)
+    return ring_areas(np.ascontiguousarray(np.concatenate(rings), dtype=np.float64), starts)
 
 
 def rings_to_multipolygon(rings: list[np.ndarray]):

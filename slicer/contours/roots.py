@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._kernels.brackets import bracket_points, bracket_update
 from .._kernels.launch import serial
 from ..checks import positive_number
 from ..errors import GridError
-from ..field import evaluate, evaluate_plane
+from ..field import evaluate, plane_field
 from ..skeleton import Skeleton
 
 #: iterations of the bracketed solver before it gives up (bisection halves
@@ -27,10 +28,11 @@ SERIAL_BATCH = 4096
 def _field(skel: Skeleton, points: np.ndarray, gradient: bool = False):
     """:func:`slicer.field.evaluate`, serial for small batches (same values);
     points of one layer plane go through that plane's support grid
-    (:func:`slicer.field.evaluate_plane`, the same values)."""
+    (:func:`slicer.field.plane_field`, the same values)."""
     kern = evaluate
     if points.shape[0] and np.all(points[:, 2] == points[0, 2]):
-        kern = evaluate_plane
+        kern = plane_field
+        points = np.ascontiguousarray(points, dtype=np.float64)
     if points.shape[0] >= SERIAL_BATCH:
         return kern(skel, points, gradient)
     with serial():
@@ -121,52 +123,16 @@ def solve_crossings(skel: Skeleton, a: np.ndarray, b: np.ndarray, tol: float,
     t[bracketed] = np.where(glo[bracketed] == 0.0, 0.0, 0.5)
     pf = np.flatnonzero(proved & (length > tol) & (glo != 0.0))
     t[pf] = 0.5 * (clo[pf] + chi[pf])
+    if slope is None:
+        reach_t = np.full(n, np.inf)        # proves nothing: (clo, chi) stay (0, 1)
+    br = (lo, hi, glo, ghi, side, width1, width2, clo, chi, t)
     it = 0
     while act.size and it < MAX_ITER:
         it += 1
-        l, h, gl, gh = lo[act], hi[act], glo[act], ghi[act]
-        w = h - l
-        q = 0.5 * tol_t[act]
-        ts = l + w * gl / (gl - gh)             # gl >= 0 > gh: a point in [l, h]
-        # stay tol/2 inside the bracket: near the root, the next step then
-        # lands on the other side and closes the bracket to ~tol
-        ts = np.minimum(np.maximum(ts, l + q), h - q)
-        bis = (w > 0.5 * width2[act]) & (it > 2) | ~(ts > l) | ~(ts < h)
-        tm = np.where(bis, 0.5 * (l + h), ts)
-        width2[act] = width1[act]
-        width1[act] = w
-        f = _field(skel, a[act] + tm[:, None] * d[act])[0]
+        tm, pts = bracket_points(act, br, tol_t, it, a, d)
+        f = _field(skel, pts)[0]
         evals += act.size
-        g = f - 1.0
-        up = g >= 0.0                           # root above tm
-        sd = side[act]
-        # Illinois: halve the stale end's value when the same end moves twice
-        gh_new = np.where(up & (sd == 1), 0.5 * gh, gh)
-        gl_new = np.where(~up & (sd == -1), 0.5 * gl, gl)
-        lo[act] = np.where(up, tm, l)
-        glo[act] = np.where(up, g, gl_new)
-        hi[act] = np.where(up, h, tm)
-        ghi[act] = np.where(up, gh_new, g)
-        side[act] = np.where(up, 1, -1)
-        exact = g == 0.0
-        t[act] = tm
-        if slope is not None:
-            e = (np.abs(g) + FIELD_SLACK * (1.0 + np.abs(f))) * reach_t[act]
-            chi[act] = np.minimum(chi[act], np.where(up, tm + e, tm))
-            clo[act] = np.maximum(clo[act], np.where(up, tm, tm - e))
-        pr = (np.minimum(chi[act], hi[act]) - np.maximum(clo[act], lo[act])) * length[act] <= tol
-        done = exact | ((hi[act] - lo[act]) * length[act] <= tol)
-        byslope = act[pr & ~done]
-        if byslope.size:
-            t[byslope] = 0.5 * (np.minimum(chi[byslope], hi[byslope]) + np.maximum(clo[byslope], lo[byslope]))
-        fin = act[done & ~exact]
-        if fin.size:
-            gl, gh = glo[fin], ghi[fin]
-            # secant point of the final bracket (Illinois-scaled values are
-            # still of the right signs, so it stays inside the bracket)
-            ts = lo[fin] + (hi[fin] - lo[fin]) * gl / (gl - gh)
-            t[fin] = np.clip(ts, lo[fin], hi[fin])
-        act = act[~(done | pr)]
+        act = bracket_update(act, tm, f, br, reach_t, length, float(tol), FIELD_SLACK)
     if act.size:   # pragma: no cover - the bisection safeguard makes this unreachable
         t[act] = 0.5 * (lo[act] + hi[act])
     return a + t[:, None] * d, t, bracketed, evals
