@@ -191,8 +191,10 @@ class CliWriter(ContourWriter):
         q = q[keep]
         if len(q) < 4 or np.any(q[0] != q[-1]):  # 3 distinct points plus the closing one
             return None
+        # the shoelace sum over the ring's n distinct vertices (q[n] == q[0]: the
+        # shifted coordinates are q[1:], copied as np.roll(., -1) would give them)
         x, y = q[:-1, 0], q[:-1, 1]
-        area2 = float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+        area2 = float(np.dot(x, q[1:, 1].copy()) - np.dot(q[1:, 0].copy(), y))
         if (area2 <= 0) if outer else (area2 >= 0):
             return None
         return q
