@@ -17,16 +17,16 @@ from .._jit import inline_kernel, kernel
 
 
 @inline_kernel
-def _np_min(a, b):
-    """``np.minimum``: NaN if either is NaN."""
+def np_minimum(a, b):
+    """``np.minimum`` of two floats: NaN if either is NaN."""
     if a != a or b != b:
         return np.nan
     return a if a <= b else b
 
 
 @inline_kernel
-def _np_max(a, b):
-    """``np.maximum``: NaN if either is NaN."""
+def np_maximum(a, b):
+    """``np.maximum`` of two floats: NaN if either is NaN."""
     if a != a or b != b:
         return np.nan
     return a if a >= b else b
@@ -69,7 +69,7 @@ def bracket_points(act, br, tol_t, it, a, d):
         w = h - l
         q = 0.5 * tol_t[i]
         ts = l + w * gl / (gl - ghi[i])
-        ts = _np_min(_np_max(ts, l + q), h - q)
+        ts = np_minimum(np_maximum(ts, l + q), h - q)
         if (w > 0.5 * width2[i] and it > 2) or not ts > l or not ts < h:
             ts = 0.5 * (l + h)
         width2[i] = width1[i]
@@ -115,18 +115,18 @@ def bracket_update(act, tm, f, br, reach_t, length, tol, slack):
             glo[i], hi[i], ghi[i], side[i] = gl, m, g, -1
         t[i] = m
         e = (abs(g) + slack * (1.0 + abs(f[j]))) * reach_t[i]
-        chi[i] = _np_min(chi[i], m + e if up else m)
-        clo[i] = _np_max(clo[i], m if up else m - e)
+        chi[i] = np_minimum(chi[i], m + e if up else m)
+        clo[i] = np_maximum(clo[i], m if up else m - e)
         lo2, hi2 = lo[i], hi[i]
-        pr = (_np_min(chi[i], hi2) - _np_max(clo[i], lo2)) * length[i] <= tol
+        pr = (np_minimum(chi[i], hi2) - np_maximum(clo[i], lo2)) * length[i] <= tol
         exact = g == 0.0
         done = exact or (hi2 - lo2) * length[i] <= tol
         if pr and not done:
-            t[i] = 0.5 * (_np_min(chi[i], hi2) + _np_max(clo[i], lo2))
+            t[i] = 0.5 * (np_minimum(chi[i], hi2) + np_maximum(clo[i], lo2))
         if done and not exact:
             # secant point of the final bracket (Illinois-scaled values keep their signs)
             ts = lo2 + (hi2 - lo2) * glo[i] / (glo[i] - ghi[i])
-            t[i] = _np_min(_np_max(ts, lo2), hi2)
+            t[i] = np_minimum(np_maximum(ts, lo2), hi2)
         if not (done or pr):
             keep[nk] = i
             nk += 1

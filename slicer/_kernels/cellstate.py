@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from .._jit import inline_kernel, kernel
+from .brackets import np_minimum
 
 #: leaf states (:mod:`slicer.contours.cells`): proven outside, proven inside,
 #: monotone in x and y, monotone in one of them with no cap deeper than the
@@ -21,19 +22,11 @@ OUT, IN, SIMPLE, ONEDIR, SMALL, THIN = 0, 1, 2, 3, 4, 5
 
 
 @inline_kernel
-def _nan_min(a, b):
-    """``np.minimum(a, b)``: NaN if either is NaN."""
-    if a != a or b != b:
-        return math.nan
-    return a if a <= b else b
-
-
-@inline_kernel
 def _judge_one(f, gx, gy, G, H, r, far, tol, slack):
     """State, curvature bound and the two slope bounds of one cell (see
     :func:`judge_cells`)."""
     gn = math.hypot(gx, gy)
-    spread = r * _nan_min(G, gn + 0.5 * r * H)      # NaN compares false, as inf would
+    spread = r * np_minimum(G, gn + 0.5 * r * H)      # NaN compares false, as inf would
     fs = slack * (1.0 + abs(f))
     gs = slack * (gn + G) + r * H
     if gs != gs:
@@ -181,7 +174,7 @@ def crest_candidates(state, f, g, G, H, r, thin, slack, bound_slack):
         if state[j] >= 0:
             continue
         gn = math.hypot(g[j, 0], g[j, 1])
-        t = _nan_min(gn / H[j], r)
+        t = np_minimum(gn / H[j], r)
         low = f[j] + gn * t - 0.5 * H[j] * t * t - slack * (1.0 + abs(f[j]) + r * (gn + G[j]))
         out[j] = (gn <= r * H[j] * (1.0 + bound_slack) + slack * (gn + G[j])
                   and not low > 1.0 + 0.125 * H[j] * thin ** 2)
