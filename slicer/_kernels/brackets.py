@@ -68,7 +68,9 @@ def bracket_points(act, br, tol_t, it, a, d):
         gl = glo[i]
         w = h - l
         q = 0.5 * tol_t[i]
-        ts = l + w * gl / (gl - ghi[i])
+        ts = l + w * gl / (gl - ghi[i])           # gl >= 0 > gh: a point of [l, h]
+        # tol/2 inside the bracket: near the root, the next step then lands on
+        # the other side and closes the bracket to about tol
         ts = np_minimum(np_maximum(ts, l + q), h - q)
         if (w > 0.5 * width2[i] and it > 2) or not ts > l or not ts < h:
             ts = 0.5 * (l + h)

@@ -1,5 +1,5 @@
 """States of quadtree cells of a layer plane from their centre's Taylor data and
-the disc bounds (:mod:`slicer.contours.cells`, docs/contours.md step 2).
+the disc bounds (:mod:`slicer.contours.cells`, docs/contours.md step 1).
 
 One pass per batch of cells instead of a few dozen whole-array numpy steps:
 the arithmetic is the same, operation by operation, so the states, curvature

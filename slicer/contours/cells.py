@@ -72,7 +72,6 @@ THIN_FRACTION = 0.25
 TOL_ULPS = 1024
 
 
-
 def check_resolvable(skel: Skeleton, tol: float, name: str = "--contour-tol") -> float:
     """Refuse a tolerance that float64 cannot resolve at the scene's coordinates.
 
@@ -280,7 +279,7 @@ class _Bounds:
             f[reach], g[reach] = _field(self.skel, p, gradient=True)
             self.evaluations += reach.size
         # the states, the contour's curvature bound |F_tt| / |grad F| <= H / (least
-        # |grad_xy F|) and the slope bounds, in one compiled pass (docs/contours.md, step 2)
+        # |grad_xy F|) and the slope bounds, in one compiled pass (docs/contours.md, step 1)
         g2 = np.ascontiguousarray(g[:, :2])
         state, kappa, slope = judge_cells(f, g2, G, H, far, r, self.tol, FIELD_SLACK)
         return state, kappa, slope, (f, g2, G, H, U)
