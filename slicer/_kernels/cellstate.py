@@ -131,17 +131,24 @@ def settle_from_parent(f, g, G, H, r, cx, cy, parent, slack):
     state = np.empty(nc, np.int8)
     for j in range(nc):
         k = j // 4
-        gn = math.hypot(g[k, 0], g[k, 1])
-        lin = f[k] + g[k, 0] * (cx[j] - px[k]) + g[k, 1] * (cy[j] - py[k])
-        spread = r * gn + 2.0 * H[k] * r * r
-        sl = slack * (1.0 + abs(f[k]) + 2.0 * r * (gn + G[k]))
-        st = -1
-        if lin + spread + sl < 1.0:
-            st = OUT
-        if lin - spread - sl > 1.0:
-            st = IN
-        state[j] = st
+        state[j] = settle_one(f[k], g[k, 0], g[k, 1], G[k], H[k], r, cx[j] - px[k], cy[j] - py[k], slack)
     return state
+
+
+@inline_kernel
+def settle_one(f, gx, gy, G, H, r, dx, dy, slack):
+    """IN, OUT or -1 of one child cell, offset ``(dx, dy)`` from its parent's
+    centre, from the parent's Taylor data (:func:`settle_from_parent`)."""
+    gn = math.hypot(gx, gy)
+    lin = f + gx * dx + gy * dy
+    spread = r * gn + 2.0 * H * r * r
+    sl = slack * (1.0 + abs(f) + 2.0 * r * (gn + G))
+    st = -1
+    if lin + spread + sl < 1.0:
+        st = OUT
+    if lin - spread - sl > 1.0:
+        st = IN
+    return st
 
 
 @kernel
@@ -173,9 +180,14 @@ def crest_candidates(state, f, g, G, H, r, thin, slack, bound_slack):
     for j in range(nc):
         if state[j] >= 0:
             continue
-        gn = math.hypot(g[j, 0], g[j, 1])
-        t = np_minimum(gn / H[j], r)
-        low = f[j] + gn * t - 0.5 * H[j] * t * t - slack * (1.0 + abs(f[j]) + r * (gn + G[j]))
-        out[j] = (gn <= r * H[j] * (1.0 + bound_slack) + slack * (gn + G[j])
-                  and not low > 1.0 + 0.125 * H[j] * thin ** 2)
+        out[j] = crest_candidate(f[j], g[j, 0], g[j, 1], G[j], H[j], r, thin, slack, bound_slack)
     return out
+
+
+@inline_kernel
+def crest_candidate(f, gx, gy, G, H, r, thin, slack, bound_slack):
+    """Whether one unresolved cell is a crest candidate (:func:`crest_candidates`)."""
+    gn = math.hypot(gx, gy)
+    t = np_minimum(gn / H, r)
+    low = f + gn * t - 0.5 * H * t * t - slack * (1.0 + abs(f) + r * (gn + G))
+    return gn <= r * H * (1.0 + bound_slack) + slack * (gn + G) and not low > 1.0 + 0.125 * H * thin ** 2

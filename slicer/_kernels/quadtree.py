@@ -1,0 +1,452 @@
+"""The quadtree of one layer plane in one compiled call (:mod:`slicer.contours.cells`,
+docs/contours.md step 1).
+
+Level by level, every cell is settled from its parent's Taylor data, or
+classified from its centre's field and gradient and the disc bounds
+(:mod:`slicer._kernels.cellbounds`), or tried as a crest cell
+(:mod:`slicer._kernels.ridgebounds`); cells left unresolved are split. The
+cells of a level are independent (``prange``); leaves, known centre values
+and the next level are gathered serially, in cell order. The arithmetic is
+that of the cell-state passes (:mod:`slicer._kernels.cellstate`), operation
+by operation, so the leaves do not depend on the thread count.
+
+A plane travels as one tuple, ``plane`` (:func:`plane_data` documents it);
+a level's cells and their parents' data as arrays indexed by cell.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import prange
+
+from .._jit import inline_kernel, kernel, parallel_kernel
+from .borrow import borrow, keep_alive
+from .brackets import np_maximum, np_minimum
+from .cellbounds import SLACK, _disc, kernel_curvature_max, square_of
+from .cellstate import IN, OUT, SMALL, THIN, _judge_one, crest_candidate, settle_one
+from .field import SCRATCH
+from .points import point_field
+from .raysupport import kprime_max
+from .ridgebounds import _frame_disc
+
+#: cells per task of a level's ``prange`` (each task owns one field scratch array)
+CHUNK = 64
+
+
+def plane_data(seg, bins, ids, pgrid, z, n, sigma, norm):
+    """The pair ``(arrays, constants)`` a plane's quadtree kernels take (the
+    kernels borrow the arrays once: no reference counting per call).
+
+    Parameters
+    ----------
+    seg : (m, 10) float64
+        Segment table.
+    bins : tuple
+        ``(x0, y0, side, nx, ny, rmax, offsets, lists)``: the plane's segments
+        binned on the root grid (:func:`slicer.contours.cells._bin_segments`).
+    ids : (q,) int64
+        All segments of the plane (for discs the bins do not hold).
+    pgrid : tuple
+        ``(offsets, ids, origin, cell, dims)`` of the plane's point grid
+        (:func:`slicer.field.plane_grid`).
+    z : float, mm
+    n, sigma, norm : int, float, float
+        Kernel degree, support factor and normalisation.
+    """
+    x0, y0, side, nx, ny, rmax, offsets, lists = bins
+    po, pi, porig, pcell, pdims = pgrid
+    n, sigma, norm = int(n), float(sigma), float(norm)
+    arrays = (seg, np.ascontiguousarray(offsets, np.int64), np.ascontiguousarray(lists, np.int64),
+              np.ascontiguousarray(ids, np.int64), po, pi, porig, pcell, pdims)
+    consts = (float(x0), float(y0), float(side), int(nx), int(ny), float(rmax), float(z), n, sigma, norm,
+              kprime_max(n, sigma, norm), kernel_curvature_max(n, sigma, norm), 1.0 / sigma**2)
+    return arrays, consts
+
+
+@inline_kernel
+def _bin_of(plane, cx, cy, r):
+    """``(list, a, b)``: the segments that can reach the disc, ``list[a:b]``."""
+    (_, offsets, lists, ids, _, _, _, _, _), (x0, y0, side, nx, ny, rmax) = plane[0], plane[1][:6]
+    if cx >= x0 and cx < x0 + nx * side and cy >= y0 and cy < y0 + ny * side and r <= rmax:
+        c = square_of(cx, cy, x0, y0, side, nx, ny)
+        return lists, offsets[c], offsets[c + 1]
+    return ids, 0, ids.shape[0]
+
+
+@inline_kernel
+def disc_at(plane, cx, cy, r, pieces):
+    """``G, H, U`` of one disc (:func:`slicer._kernels.cellbounds.disc_bounds`)."""
+    lst, a, b = _bin_of(plane, cx, cy, r)
+    z, n, sigma, norm, k1, k2 = plane[1][6:12]
+    return _disc(plane[0][0], lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces)
+
+
+@inline_kernel
+def frame_at(plane, cx, cy, r):
+    """``ux, uy, FVV, FUU, FUV`` of one disc (:func:`slicer._kernels.ridgebounds.ridge_bounds`)."""
+    lst, a, b = _bin_of(plane, cx, cy, r)
+    z, n, sigma, norm, k1 = plane[1][6:11]
+    return _frame_disc(plane[0][0], lst, a, b, cx, cy, z, r, n, sigma, norm, k1)
+
+
+@inline_kernel
+def field_at(plane, x, y, scratch):
+    """Field and in-plane gradient ``(f, gx, gy)`` at ``(x, y, z)``."""
+    seg, _, _, _, po, pi, porig, pcell, pdims = plane[0]
+    z, n, norm, inv_s2 = plane[1][6], plane[1][7], plane[1][9], plane[1][12]
+    f, gx, gy, _ = point_field(seg, po, pi, porig, pcell, pdims, n // 2, inv_s2, norm, True, scratch, x, y, z)
+    return f, gx, gy
+
+
+@inline_kernel
+def judge_at(plane, cx, cy, r, G, H, U, known, f, gx, gy, tol, fslack, scratch):
+    """State, curvature and slope bounds of one cell from the disc bounds
+    ``G, H, U`` (:func:`slicer._kernels.cellstate.judge_cells`), with the
+    centre's field and gradient ``f, gx, gy`` when ``known``, else evaluated
+    unless ``U`` already puts the disc outside (then 0).
+
+    Returns
+    -------
+    state, kappa, sx, sy, f, gx, gy, evaluations
+    """
+    far = U * (1.0 + fslack) < 1.0
+    ev = 0
+    if not known:
+        f = gx = gy = 0.0
+        if not far:
+            f, gx, gy = field_at(plane, cx, cy, scratch)
+            ev = 1
+    st, kp, sx, sy = _judge_one(f, gx, gy, G, H, r, far, tol, fslack)
+    return st, kp, sx, sy, f, gx, gy, ev
+
+
+@inline_kernel
+def _crest_bound(f, gx, gy, G, ux, uy, r, fixed, uv, curv, fslack):
+    """The bound ``M`` of F over a crest cell's disc from the point with field
+    ``f`` and gradient ``(gx, gy)`` (:meth:`slicer.contours.cells._Bounds.ridge`)."""
+    gn = math.hypot(gx, gy)
+    eg = fslack * (gn + G)
+    gu = abs(gx * ux + gy * uy) + eg
+    gv = abs(gy * ux - gx * uy) + eg
+    q = gv + r * uv
+    return f + fslack * (1.0 + abs(f)) + r * gu + fixed + q * q / (2.0 * curv)
+
+
+@kernel
+def ridge_at(plane, cx, cy, r, f0, gx0, gy0, G, thin2, fslack, scratch):
+    """OUT, THIN or -1 of one crest cell (docs/math.md §10.1): the bound ``M``
+    from the centre and two steps towards the crest along v (Newton, then
+    secant), the least kept.
+
+    Returns
+    -------
+    state, evaluations
+    """
+    ux, uy, vv, uu, uv = frame_at(plane, cx, cy, r)
+    if not -vv > 0.0:
+        return -1, 0
+    curv = -vv
+    fixed = 0.5 * np_maximum(uu, 0.0) * r * r
+    best = _crest_bound(f0, gx0, gy0, G, ux, uy, r, fixed, uv, curv, fslack)
+    gv0 = gy0 * ux - gx0 * uy
+    lim = 0.999 * r
+    t1 = np_minimum(np_maximum(gv0 / curv, -lim), lim)
+    f1, gx1, gy1 = field_at(plane, cx - t1 * uy, cy + t1 * ux, scratch)
+    gv1 = gy1 * ux - gx1 * uy
+    best = np_minimum(best, _crest_bound(f1, gx1, gy1, G, ux, uy, r, fixed, uv, curv, fslack))
+    k = (gv0 - gv1) / t1
+    if not (math.isfinite(k) and k > 0.0):
+        k = curv
+    t2 = np_minimum(np_maximum(t1 + gv1 / k, -lim), lim)
+    f2, gx2, gy2 = field_at(plane, cx - t2 * uy, cy + t2 * ux, scratch)
+    best = np_minimum(best, _crest_bound(f2, gx2, gy2, G, ux, uy, r, fixed, uv, curv, fslack))
+    if best < 1.0:
+        return OUT, 2
+    if 8.0 * (best - 1.0) <= curv * thin2:
+        return THIN, 2
+    return -1, 2
+
+
+#: how a cell gets its disc bounds (:func:`classify_at`): a root cell (cheap
+#: bounds, then full ones where those leave it neither IN nor OUT), a small
+#: cell (its parent's bounds), a larger cell (its parent's, then its own
+#: where those leave it unresolved)
+ROOT, INHERIT, OWN = 0, 1, 2
+
+
+@inline_kernel
+def classify_at(plane, cx, cy, r, kind, G, H, U, tol, pieces, coarse, fslack, scratch):
+    """State and Taylor data of one cell (:meth:`slicer.contours.cells._Bounds.classify`).
+
+    ``kind`` is ROOT, INHERIT or OWN; ``G, H, U`` are the parent's bounds
+    (unused for ROOT).
+
+    Returns
+    -------
+    state, kappa, sx, sy, f, gx, gy, G, H, U, evaluations
+    """
+    if kind == ROOT:
+        G, H, U = disc_at(plane, cx, cy, r, coarse)
+    st, kp, sx, sy, f, gx, gy, ev = judge_at(plane, cx, cy, r, G, H, U, False, 0.0, 0.0, 0.0, tol, fslack,
+                                             scratch)
+    again = (st != IN and st != OUT) if kind == ROOT else (kind == OWN and st < 0)
+    if again:
+        G, H, U = disc_at(plane, cx, cy, r, pieces)
+        st, kp, sx, sy, f, gx, gy, _ = judge_at(plane, cx, cy, r, G, H, U, True, f, gx, gy, tol, fslack, scratch)
+    return st, kp, sx, sy, f, gx, gy, G, H, U, ev
+
+
+@inline_kernel
+def _cell(plane, cx, cy, rr, k, kind, parents, crests, settings, scratch):
+    """One cell of :func:`quadtree_level` (parent ``k``; no parents: a root
+    cell): settled from the parent's Taylor data, or classified
+    (:func:`classify_at`) and, where ``crests`` and it may hold a critical
+    point, tried as a crest cell (:func:`ridge_at`).
+
+    Returns
+    -------
+    state, kappa, sx, sy, f, gx, gy, G, H, U, evaluations
+        (NaN f, zero bounds and no evaluation when settled by the parent.)
+    """
+    tol, thin, pieces, coarse, fslack, bslack = settings
+    pcx, pcy, pf, pgx, pgy, pG, pH, pU = parents
+    have = pcx.shape[0] > 0
+    G = H = U = 0.0
+    if have:
+        st = settle_one(pf[k], pgx[k], pgy[k], pG[k], pH[k], rr, cx - pcx[k], cy - pcy[k], fslack)
+        if st >= 0:
+            return st, np.inf, 0.0, 0.0, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0
+        G, H, U = pG[k], pH[k], pU[k]
+    st, kp, ax, ay, f, gx, gy, G, H, U, ev = classify_at(plane, cx, cy, rr, kind if have else ROOT, G, H, U, tol,
+                                                           pieces, coarse, fslack, scratch)
+    if crests and st < 0 and crest_candidate(f, gx, gy, G, H, rr, thin, fslack, bslack):
+        st, e2 = ridge_at(plane, cx, cy, rr, f, gx, gy, G, thin ** 2, fslack, scratch)
+        ev += e2
+    return st, kp, ax, ay, f, gx, gy, G, H, U, ev
+
+
+@parallel_kernel
+def quadtree_level(plane, ix, iy, x0, y0, s, rr, kind, parents, crests, settings):
+    """States and Taylor data of the cells ``(ix, iy)`` of one level (side
+    ``s``, disc radius ``rr``): settled from the parents' data when there are
+    parents (child ``j``'s parent is ``j // 4``), else classified, then tried
+    as crest cells where ``crests``.
+
+    Parameters
+    ----------
+    parents : tuple of (p,) float64
+        ``(cx, cy, f, gx, gy, G, H, U)`` of the parents (empty: root cells).
+    settings : tuple
+        ``(tol, thin, pieces, coarse, fslack, bslack)``: the tolerance and
+        the widest section of a crest cell (mm), pieces per segment of the
+        full and the cheap disc bounds, the relative error budgets of a field
+        evaluation and of the disc bounds.
+
+    Returns
+    -------
+    state : (c,) int8
+    kappa, sx, sy : (c,) float64
+    taylor : (8, c) float64
+        ``cx, cy, f, gx, gy, G, H, U`` of each cell (NaN f where settled by
+        the parent).
+    evaluations : int
+    """
+    nc = ix.shape[0]
+    state = np.empty(nc, np.int8)
+    kappa = np.empty(nc)
+    sx = np.empty(nc)
+    sy = np.empty(nc)
+    tay = np.empty((8, nc))
+    evals = np.zeros(nc, np.int64)
+    # slicer._kernels.borrow: the arguments outlive the call; the pair is rebuilt
+    # in each task (a parfor cannot take a tuple of arrays)
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = borrow(plane[0])
+    consts = plane[1]
+    for ch in prange((nc + CHUNK - 1) // CHUNK):
+        own = np.empty(SCRATCH)
+        scratch = borrow(own)
+        plane = ((a0, a1, a2, a3, a4, a5, a6, a7, a8), consts)
+        for j in range(ch * CHUNK, min(nc, (ch + 1) * CHUNK)):
+            cx = x0 + (ix[j] + 0.5) * s
+            cy = y0 + (iy[j] + 0.5) * s
+            st, kp, ax, ay, f, gx, gy, G, H, U, ev = _cell(plane, cx, cy, rr, j // 4, kind, parents, crests, settings,
+                                                           scratch)
+            state[j], kappa[j], sx[j], sy[j], evals[j] = st, kp, ax, ay, ev
+            tay[0, j], tay[1, j], tay[2, j], tay[3, j] = cx, cy, f, gx
+            tay[4, j], tay[5, j], tay[6, j], tay[7, j] = gy, G, H, U
+        keep_alive((own,))
+    return state, kappa, sx, sy, tay, evals.sum()
+
+
+@kernel
+def _grow(a, need):
+    """``a`` or a copy at least ``need`` long, with ``a``'s elements first."""
+    if a.shape[0] >= need:
+        return a
+    out = np.empty(max(need, 2 * a.shape[0]), a.dtype)
+    out[:a.shape[0]] = a
+    return out
+
+
+@kernel
+def _gather(ix, iy, lev, levels, level, leaves, nl, known, nk):
+    """Append the leaves of one level (cells with a state; at the finest
+    level the unresolved ones become SMALL) to ``leaves``, the centre values
+    of its split cells to ``known``, and make the next level: four children
+    per split cell, in order, with their parent's Taylor data.
+
+    Parameters
+    ----------
+    ix, iy : (c,) int64
+        The level's cells.
+    level : tuple
+        ``(state, kappa, sx, sy, taylor)`` of :func:`quadtree_level`.
+    leaves : tuple
+        ``(X0, Y0, size, state, kappa, sx, sy)``, ``nl`` of them filled.
+    known : tuple
+        ``(kx, ky, kf)``, ``nk`` of them filled.
+
+    Returns
+    -------
+    ix, iy, parents, leaves, nl, known, nk
+    """
+    state, kappa, sx, sy, tay = level
+    nc = ix.shape[0]
+    unit = 1 << (levels - lev)
+    nsplit = 0
+    for j in range(nc):
+        if state[j] < 0 and lev == levels:
+            state[j] = SMALL
+        if state[j] < 0:
+            nsplit += 1
+    LX, LY, LS, LST, LK, LSX, LSY = leaves
+    LX, LY, LS, LST = _grow(LX, nl + nc), _grow(LY, nl + nc), _grow(LS, nl + nc), _grow(LST, nl + nc)
+    LK, LSX, LSY = _grow(LK, nl + nc), _grow(LSX, nl + nc), _grow(LSY, nl + nc)
+    KX, KY, KF = known
+    if unit >= 2:
+        KX, KY, KF = _grow(KX, nk + nsplit), _grow(KY, nk + nsplit), _grow(KF, nk + nsplit)
+    nix = np.empty(4 * nsplit, np.int64)
+    niy = np.empty(4 * nsplit, np.int64)
+    par = np.empty((8, nsplit))
+    q = 0
+    for j in range(nc):
+        if state[j] >= 0:
+            LX[nl], LY[nl], LS[nl], LST[nl] = ix[j] * unit, iy[j] * unit, unit, state[j]
+            LK[nl], LSX[nl], LSY[nl] = kappa[j], sx[j], sy[j]
+            nl += 1
+            continue
+        if unit >= 2:
+            KX[nk], KY[nk], KF[nk] = ix[j] * unit + unit // 2, iy[j] * unit + unit // 2, tay[2, j]
+            nk += 1
+        par[:, q] = tay[:, j]
+        for c in range(4):
+            nix[4 * q + c] = 2 * ix[j] + (c & 1)
+            niy[4 * q + c] = 2 * iy[j] + (c >> 1)
+        q += 1
+    parents = (par[0], par[1], par[2], par[3], par[4], par[5], par[6], par[7])
+    return nix, niy, parents, (LX, LY, LS, LST, LK, LSX, LSY), nl, (KX, KY, KF), nk
+
+
+@kernel
+def quadtree(plane, root, levels, inherit_side, settings):
+    """Leaves of the quadtree over the root cells, ``root = (x0, y0, s0, nx, ny)``
+    (:func:`slicer.contours.cells._quadtree` documents the results): level by
+    level, :func:`quadtree_level` then :func:`_gather`.
+
+    Returns
+    -------
+    X0, Y0, size : (l,) int64
+    state : (l,) int8
+    kappa : (l,) float64
+    slope : (l, 2) float64
+    cells, evaluations : int
+    kx, ky : (k,) int64
+    kf : (k,) float64
+    """
+    x0, y0, s0, nx, ny = root
+    ix = np.arange(nx * ny) % nx
+    iy = np.arange(nx * ny) // nx
+    e = np.zeros(0)
+    parents = (e, e, e, e, e, e, e, e)
+    z = np.zeros(0, np.int64)
+    leaves = (z, z, z, np.zeros(0, np.int8), e, e, e)
+    known = (z, z, e)
+    nl = nk = cells = evaluations = 0
+    for lev in range(levels + 1):
+        if ix.shape[0] == 0:
+            break
+        s = s0 / 2.0 ** lev
+        rr = 0.5 * math.sqrt(2.0) * s * (1.0 + SLACK)
+        kind = INHERIT if s <= inherit_side else OWN
+        state, kappa, sx, sy, tay, ev = quadtree_level(plane, ix, iy, x0, y0, s, rr, kind, parents, lev < levels,
+                                                       settings)
+        cells += ix.shape[0]
+        evaluations += ev
+        ix, iy, parents, leaves, nl, known, nk = _gather(ix, iy, lev, levels, (state, kappa, sx, sy, tay), leaves, nl,
+                                                         known, nk)
+    LX, LY, LS, LST, LK, LSX, LSY = leaves
+    slope = np.empty((nl, 2))
+    slope[:, 0] = LSX[:nl]
+    slope[:, 1] = LSY[:nl]
+    return (LX[:nl].copy(), LY[:nl].copy(), LS[:nl].copy(), LST[:nl].copy(), LK[:nl].copy(), slope, cells,
+            evaluations, known[0][:nk].copy(), known[1][:nk].copy(), known[2][:nk].copy())
+
+
+@parallel_kernel
+def classify_cells(plane, cx, cy, r, settings):
+    """:func:`classify_at` of root-kind discs (cheap bounds first, then full
+    ones): the quadtree's classification of arbitrary discs.
+
+    Parameters
+    ----------
+    cx, cy, r : (c,) float64, mm
+    settings : tuple
+        As for :func:`quadtree_level`.
+
+    Returns
+    -------
+    state : (c,) int8
+    kappa, sx, sy, f, gx, gy, G, H, U : (c,) float64
+    evaluations : int
+    """
+    tol, thin, pieces, coarse, fslack, bslack = settings
+    nc = cx.shape[0]
+    state = np.empty(nc, np.int8)
+    out = np.empty((9, nc))
+    evals = np.zeros(nc, np.int64)
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = borrow(plane[0])
+    consts = plane[1]
+    for ch in prange((nc + CHUNK - 1) // CHUNK):
+        own = np.empty(SCRATCH)
+        scratch = borrow(own)
+        plane = ((a0, a1, a2, a3, a4, a5, a6, a7, a8), consts)
+        for j in range(ch * CHUNK, min(nc, (ch + 1) * CHUNK)):
+            st, kp, sx, sy, f, gx, gy, G, H, U, ev = classify_at(plane, cx[j], cy[j], r[j], ROOT, 0.0, 0.0, 0.0, tol,
+                                                                 pieces, coarse, fslack, scratch)
+            state[j] = st
+            out[0, j], out[1, j], out[2, j], out[3, j], out[4, j] = kp, sx, sy, f, gx
+            out[5, j], out[6, j], out[7, j], out[8, j] = gy, G, H, U
+            evals[j] = ev
+        keep_alive((own,))
+    return state, out, evals.sum()
+
+
+@parallel_kernel
+def ridge_cells(plane, cx, cy, r, f, g, G, thin, fslack):
+    """:func:`ridge_at` of discs with the Taylor data ``f``, ``g`` (c, 2) and ``G``
+    of their centres: OUT, THIN or -1 each, (c,) int8, and the evaluations."""
+    nc = cx.shape[0]
+    state = np.empty(nc, np.int8)
+    evals = np.zeros(nc, np.int64)
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = borrow(plane[0])
+    consts = plane[1]
+    for ch in prange((nc + CHUNK - 1) // CHUNK):
+        own = np.empty(SCRATCH)
+        scratch = borrow(own)
+        plane = ((a0, a1, a2, a3, a4, a5, a6, a7, a8), consts)
+        for j in range(ch * CHUNK, min(nc, (ch + 1) * CHUNK)):
+            state[j], evals[j] = ridge_at(plane, cx[j], cy[j], r[j], f[j], g[j, 0], g[j, 1], G[j], thin ** 2, fslack,
+                                          scratch)
+        keep_alive((own,))
+    return state, evals.sum()

@@ -1,0 +1,313 @@
+"""The guaranteed contours' quadtree as it was written before it became one
+compiled kernel: whole-array numpy steps per level over the cell-state passes.
+A naive reference for :func:`slicer._kernels.quadtree.quadtree` (leaves, states,
+bounds and counts bit for bit; tests/test_quadtree.py)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from slicer._kernels.cellbounds import PIECES, SLACK, disc_bounds, disc_bounds_binned
+from slicer._kernels.cellstate import IN, OUT, SMALL, THIN, crest_candidates, judge_cells, settle_from_parent
+from slicer._kernels.ridgebounds import ridge_bounds, ridge_bounds_binned
+from slicer.contours.cells import COARSE_PIECES, INHERIT_BELOW, _bin_segments
+from slicer.contours.roots import FIELD_SLACK, _field
+from slicer.field import point_grid
+from slicer.skeleton import Skeleton
+
+
+class _Bounds:
+    """Field, gradient and the disc bounds at cell centres of one plane."""
+
+    def __init__(self, skel: Skeleton, z: float, ids: np.ndarray, tol: float, root=None, thin: float | None = None):
+        self.skel, self.z, self.ids, self.tol = skel, float(z), ids, float(tol)
+        #: widest section a THIN cell may hold, mm
+        self.thin = float(tol if thin is None else thin)
+        self.table = point_grid(skel)[0]
+        self.evaluations = 0
+        self.bins = None if root is None else _bin_segments(skel, self.z, *root)
+
+    def _binned(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
+        """The bins' arguments when every disc fits them, else None."""
+        if self.bins is None:
+            return None
+        x0, y0, side, nx, ny, rmax, offsets, lists = self.bins
+        inside = ((cx >= x0) & (cx < x0 + nx * side) & (cy >= y0) & (cy < y0 + ny * side)).all()
+        if inside and (r.size == 0 or r.max() <= rmax):
+            return offsets, lists, x0, y0, side, nx, ny
+        return None
+
+    def disc_bounds(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, pieces: int = PIECES):
+        """G, H, U of :func:`slicer._kernels.cellbounds.disc_bounds` over the discs,
+        from the segments binned near each centre when the discs fit the bins."""
+        sk = self.skel
+        binned = self._binned(cx, cy, r)
+        if binned is not None:
+            return disc_bounds_binned(self.table, binned, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation,
+                                      pieces)
+        return disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation, pieces)
+
+    def ridge_bounds(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
+        """Frame and signed bounds of :func:`slicer._kernels.ridgebounds.ridge_bounds`
+        over the discs, binned like :meth:`disc_bounds`."""
+        sk = self.skel
+        binned = self._binned(cx, cy, r)
+        if binned is not None:
+            return ridge_bounds_binned(self.table, binned, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
+        return ridge_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
+
+    def ridge(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, taylor) -> np.ndarray:
+        """OUT, THIN or -1 (unresolved) of cells on a crest of the field (docs/math.md §10.1).
+
+        With ``u``, ``v`` the frame of :meth:`ridge_bounds` and, over the disc,
+        ``F_vv <= −c < 0``, ``F_uu <= B_uu``, ``|F_uv| <= B_uv``: from any point
+        ``p*`` of the disc, ``F <= M = F(p*) + r |F_u(p*)| + r² max(B_uu, 0)/2 +
+        (|F_v(p*)| + r B_uv)²/(2c)`` over the disc (Taylor's remainder along
+        ``p − p*``, maximised over the offset along v). ``p*`` is the centre and
+        two steps towards the crest along v (Newton with ``c``, then secant), the
+        least M kept. ``M < 1``: outside. Otherwise F is strictly concave along
+        every line parallel to v, so each meets the section in one interval, no
+        longer than ``sqrt(8 (M − 1)/c)`` (its crest is at least ``c l²/8`` above
+        its ends): at most ``self.thin`` (``THIN_FRACTION`` of the finest leaves'
+        side) makes the cell THIN, a leaf walked like the finest ones: what it
+        holds is narrower than what their corners reliably see.
+
+        Parameters
+        ----------
+        cx, cy, r : (c,) float64, mm
+        taylor : tuple
+            ``(f, grad, G, H, U)`` at the centres (:meth:`classify`).
+        """
+        f0, g0, G = taylor[0], taylor[1], taylor[2]
+        ux, uy, vv, uu, uv = self.ridge_bounds(cx, cy, r)
+        state = np.full(cx.size, -1, np.int8)
+        with np.errstate(invalid="ignore"):
+            ok = np.flatnonzero(-vv > 0.0)
+        if ok.size == 0:
+            return state
+        cx, cy, r, f0, g0, G = cx[ok], cy[ok], r[ok], f0[ok], g0[ok], G[ok]
+        ux, uy, curv, uu, uv = ux[ok], uy[ok], -vv[ok], uu[ok], uv[ok]
+        fixed = 0.5 * np.maximum(uu, 0.0) * r * r
+
+        def crest_bound(f, g):
+            gn = np.hypot(g[:, 0], g[:, 1])
+            eg = FIELD_SLACK * (gn + G)
+            gu = np.abs(g[:, 0] * ux + g[:, 1] * uy) + eg
+            gv = np.abs(g[:, 1] * ux - g[:, 0] * uy) + eg
+            return f + FIELD_SLACK * (1.0 + np.abs(f)) + r * gu + fixed + (gv + r * uv) ** 2 / (2.0 * curv)
+
+        best = crest_bound(f0, g0)
+        # towards the crest along v: a Newton step with the bound c, then a secant step
+        gv0 = g0[:, 1] * ux - g0[:, 0] * uy
+        lim = 0.999 * r
+        t1 = np.clip(gv0 / curv, -lim, lim)
+        f1, g1 = self._at(cx - t1 * uy, cy + t1 * ux)
+        gv1 = g1[:, 1] * ux - g1[:, 0] * uy
+        best = np.minimum(best, crest_bound(f1, g1))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            k = (gv0 - gv1) / t1
+        k = np.where(np.isfinite(k) & (k > 0.0), k, curv)
+        t2 = np.clip(t1 + gv1 / k, -lim, lim)
+        f2, g2 = self._at(cx - t2 * uy, cy + t2 * ux)
+        best = np.minimum(best, crest_bound(f2, g2))
+        with np.errstate(invalid="ignore"):
+            verdict = np.where(best < 1.0, OUT, np.where(8.0 * (best - 1.0) <= curv * self.thin ** 2, THIN, -1))
+        state[ok] = verdict
+        return state
+
+    def _at(self, x: np.ndarray, y: np.ndarray):
+        """Field and in-plane gradient at points of the plane, (k,) and (k, 2)."""
+        if x.size == 0:
+            return np.zeros(0), np.zeros((0, 2))
+        f, g = _field(self.skel, np.column_stack([x, y, np.full(x.size, self.z)]), gradient=True)
+        self.evaluations += x.size
+        return f, g[:, :2]
+
+    def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, inherited=None, values=None):
+        """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
+        a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none),
+        lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over it, (c, 2) float64,
+        1/mm (0: none), and the Taylor data of its centre: the field, (c,)
+        float64 (0 where the bound ``U`` already puts the cell outside: not
+        evaluated), the in-plane gradient, (c, 2) float64, 1/mm, and the bounds
+        ``G``, ``H`` and ``U`` over the disc.
+
+        ``inherited``: ``(G, H, U)`` of discs that contain these (a parent's
+        disc holds its children's), used as they are instead of new bounds.
+        ``values``: the field and in-plane gradient at the centres, ``(c,)`` and
+        ``(c, 2)``, when already known (no evaluation).
+
+        With neither (root cells), the discs first get cheap bounds
+        (``COARSE_PIECES`` pieces per segment); only the cells these leave
+        neither IN nor OUT get the full ones. The full bounds are at least as
+        tight, so the cells the cheap ones settle are those the full ones would
+        settle, in the same state; the others get the full bounds' state and
+        data. (Smaller cells need bounds of their own only where their parent's
+        left them unresolved, near the contour, where cheap bounds seldom
+        settle anything.)"""
+        if inherited is not None or values is not None:
+            return self._judge(cx, cy, r, inherited if inherited is not None else self.disc_bounds(cx, cy, r), values)
+        state, kappa, slope, taylor = self._judge(cx, cy, r, self.disc_bounds(cx, cy, r, COARSE_PIECES), values)
+        again = np.flatnonzero((state != IN) & (state != OUT))
+        if again.size:
+            st2, kap2, slo2, tay2 = self._judge(cx[again], cy[again], r[again],
+                                                self.disc_bounds(cx[again], cy[again], r[again]),
+                                                values=(taylor[0][again], taylor[1][again]))
+            state[again], kappa[again], slope[again] = st2, kap2, slo2
+            taylor = tuple(_put(a, again, b) for a, b in zip(taylor, tay2))
+        return state, kappa, slope, taylor
+
+    def _judge(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, bounds, values=None):
+        """:meth:`classify` with the bounds ``(G, H, U)`` of the discs given."""
+        G, H, U = bounds
+        # the bound of F over the disc stays below 1 (or no support reaches it): outside, no evaluation
+        far = U * (1.0 + FIELD_SLACK) < 1.0
+        reach = np.flatnonzero(~far)
+        f = np.zeros(cx.size)
+        g = np.zeros((cx.size, 3))
+        if values is not None:
+            f[:] = values[0]
+            g[:, :2] = values[1]
+        elif reach.size:
+            p = np.column_stack([cx[reach], cy[reach], np.full(reach.size, self.z)])
+            f[reach], g[reach] = _field(self.skel, p, gradient=True)
+            self.evaluations += reach.size
+        # the states, the contour's curvature bound |F_tt| / |grad F| <= H / (least
+        # |grad_xy F|) and the slope bounds, in one compiled pass (docs/contours.md, step 1)
+        g2 = np.ascontiguousarray(g[:, :2])
+        state, kappa, slope = judge_cells(f, g2, G, H, far, r, self.tol, FIELD_SLACK)
+        return state, kappa, slope, (f, g2, G, H, U)
+
+    @staticmethod
+    def settle_children(taylor, r: float, cx: np.ndarray, cy: np.ndarray, centres) -> np.ndarray:
+        """IN or OUT (else -1) of child cells from their parent's Taylor data, with no
+        evaluation: over the child's disc (radius ``r``, inside the parent's disc of
+        radius ``2 r``), ``F(p)`` lies within ``r ‖∇F(c)‖ + H (2 r)² / 2`` of the
+        parent's linear model at the child's centre.
+
+        Parameters
+        ----------
+        taylor : tuple
+            The parents' ``(f, grad, G, H, U)`` (:meth:`classify`), one row per parent.
+        r : float, mm
+            Half diagonal of the children (with its slack).
+        cx, cy : (4 p,) float64, mm
+            Child centres, four per parent in parent order.
+        centres : ((p,) float64, (p,) float64), mm
+            The parents' centres.
+        """
+        f, g, G, H = taylor[:4]
+        return settle_from_parent(f, np.ascontiguousarray(g), G, H, float(r), cx, cy, centres, FIELD_SLACK)
+
+
+def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int, levels: int):
+    """Leaves of the quadtree over ``nx x ny`` root cells of side ``s0``.
+
+    Returns
+    -------
+    X0, Y0, X1, Y1 : (l,) int64
+        Leaf corners on the finest lattice (spacing ``s0 / 2**levels``).
+    state : (l,) int8
+    kappa : (l,) float64
+        Bound of the contour's curvature in each leaf, 1/mm.
+    slope : (l, 2) float64
+        Lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over each leaf, 1/mm.
+    cells : int
+        Cells examined.
+    known : ((k,) int64, (k,) int64, (k,) float64)
+        Lattice points ``(x, y)`` where the field is known: the centres of
+        the split cells (corners of their children), and its values there.
+    """
+    iy, ix = np.divmod(np.arange(nx * ny, dtype=np.int64), nx)
+    out = []
+    known = []
+    cells = 0
+    parent = None
+    for lev in range(levels + 1):
+        if ix.size == 0:
+            break
+        s = s0 / 2.0 ** lev
+        rr = 0.5 * math.sqrt(2.0) * s * (1.0 + SLACK)
+        cx, cy = x0 + (ix + 0.5) * s, y0 + (iy + 0.5) * s
+        state = np.full(ix.size, -1, np.int8)
+        kappa = np.full(ix.size, np.inf)
+        slope = np.zeros((ix.size, 2))
+        f = np.full(ix.size, np.nan)
+        if parent is not None:            # children proven IN or OUT by their parent's data
+            pc, taylor = parent
+            state = bounds.settle_children(taylor, rr, cx, cy, pc)
+        rest = np.flatnonzero(state < 0)
+        # the parent of child j is j // 4 (four children per split cell, in order)
+        up = None if parent is None else rest // 4
+        # (ix + 0.5) s is (ix unit + unit/2) h exactly (s = unit h, a power of two):
+        # a split cell's centre is bit for bit its children's common corner
+        inherited = None
+        if parent is not None and s <= INHERIT_BELOW * bounds.tol:
+            # small cells: the parent's bounds hold over the child's disc and are
+            # nearly as tight there; new ones would cost more than they save
+            inherited = tuple(a[up] for a in parent[1][2:])
+        # larger cells: first with the parent's bounds; those left unresolved get their own
+        # (the centre's value and gradient already known), so split cells carry their own
+        st_r, kap_r, slo_r, taylor = bounds.classify(cx[rest], cy[rest], np.full(rest.size, rr),
+                                                     inherited if inherited is not None or parent is None
+                                                     else tuple(a[up] for a in parent[1][2:]))
+        if inherited is None and parent is not None:
+            again = np.flatnonzero(st_r < 0)
+            if again.size:
+                st2, kap2, slo2, tay2 = bounds.classify(cx[rest[again]], cy[rest[again]], np.full(again.size, rr),
+                                                        None, values=(taylor[0][again], taylor[1][again]))
+                st_r[again], kap_r[again], slo_r[again] = st2, kap2, slo2
+                taylor = tuple(_put(a, again, b) for a, b in zip(taylor, tay2))
+        if lev < levels:
+            st_r = _crests(bounds, cx[rest], cy[rest], rr, st_r, taylor)
+        kappa[rest], slope[rest] = kap_r, slo_r
+        state[rest] = st_r
+        f[rest] = taylor[0]
+        cells += ix.size
+        if lev == levels:
+            state[state < 0] = SMALL
+        done = state >= 0
+        unit = 1 << (levels - lev)
+        out.append((ix[done] * unit, iy[done] * unit, unit, state[done], kappa[done], slope[done]))
+        split = ~done
+        if unit >= 2:
+            known.append((ix[split] * unit + unit // 2, iy[split] * unit + unit // 2, f[split]))
+        # split cells were all classified (settled children are leaves): their Taylor data
+        ks = np.flatnonzero(~done[rest])
+        parent = ((cx[rest[ks]], cy[rest[ks]]), tuple(a[ks] for a in taylor))
+        ix = (2 * ix[split][:, None] + np.array([0, 1, 0, 1])).ravel()
+        iy = (2 * iy[split][:, None] + np.array([0, 0, 1, 1])).ravel()
+    X0 = np.concatenate([o[0] for o in out])
+    Y0 = np.concatenate([o[1] for o in out])
+    size = np.concatenate([np.full(o[0].size, o[2], np.int64) for o in out])
+    state = np.concatenate([o[3] for o in out])
+    kappa = np.concatenate([o[4] for o in out])
+    slope = np.concatenate([o[5] for o in out])
+    kx = np.concatenate([k[0] for k in known] + [np.zeros(0, np.int64)])
+    ky = np.concatenate([k[1] for k in known] + [np.zeros(0, np.int64)])
+    kf = np.concatenate([k[2] for k in known] + [np.zeros(0)])
+    return X0, Y0, X0 + size, Y0 + size, state, kappa, slope, cells, (kx, ky, kf)
+
+
+def _crests(bounds: _Bounds, cx: np.ndarray, cy: np.ndarray, rr: float, state: np.ndarray, taylor) -> np.ndarray:
+    """``state`` with the unresolved cells that may hold a critical point of the
+    field in the plane (``‖∇_xy F(c)‖ <= r H``: the gradient may vanish in them)
+    tried as crest cells (:meth:`_Bounds.ridge`), unless F is proven to exceed
+    there what a crest cell allows, ``1 + c thin²/8`` with ``c <= H``: F is at
+    least ``F(c) + g t − H t²/2`` a step ``t = min(g/H, r)`` up the gradient."""
+    f, g, G, H = taylor[:4]
+    try_ = np.flatnonzero(crest_candidates(state, f, np.ascontiguousarray(g), G, H, float(rr), bounds.thin,
+                                           FIELD_SLACK, SLACK))
+    if try_.size == 0:
+        return state
+    out = state.copy()
+    out[try_] = bounds.ridge(cx[try_], cy[try_], np.full(try_.size, rr), tuple(a[try_] for a in taylor))
+    return out
+
+
+def _put(a: np.ndarray, rows: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A copy of ``a`` with ``a[rows] = b``."""
+    out = a.copy()
+    out[rows] = b
+    return out

@@ -1,0 +1,93 @@
+"""The guaranteed contours' quadtree as one compiled call
+(slicer._kernels.quadtree) against the whole-array numpy steps it replaced
+(tests/quadtree_reference.py): the same leaves, states, bounds, known values
+and counts, bit for bit, on planes with and without crest cells, whatever the
+thread count."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import quadtree_reference as ref
+from sample_lattices import load_sample
+from slicer import Skeleton
+from slicer._kernels.cellbounds import SLACK
+from slicer._kernels.launch import numba_threads, serial
+from slicer.contours import cells
+from slicer.contours.cells import THIN_FRACTION, _Bounds, _quadtree, _root_grid, plane_segments
+
+#: four struts lying in the plane z = 0 meet a vertical one: planes z = ±0.3 touch them along crests
+CROSS = Skeleton([[0, 0, 0], [2, 0, 0], [-2, 0, 0], [0, 2, 0], [0, -2, 0], [0, 0, 1.5]],
+                 [[0, 1], [0, 2], [0, 3], [0, 4], [0, 5]], [[0.3, 0.3]] * 4 + [[0.2, 0.2]])
+
+PLANES = [("octet_2x2x2", 1.03, 1e-3), ("octet_2x2x2", 2.9, 1e-3), ("jellyfish", 12.0, 1e-3),
+          ("microstructure", 2.0, 2e-3), ("cross", 0.3, 1e-3), ("cross", 0.1, 1e-2)]
+
+
+def _skel(name):
+    return CROSS if name == "cross" else load_sample(name)
+
+
+def _setup(skel, z, tol, module):
+    ids = plane_segments(skel, z)
+    x0, y0, s0, nx, ny, levels = _root_grid(skel, ids, tol, None)
+    b = module._Bounds(skel, z, ids, tol, (x0, y0, s0, nx, ny), thin=THIN_FRACTION * s0 / 2.0 ** levels)
+    return b, (x0, y0, s0, nx, ny, levels)
+
+
+def _compiled(skel, z, tol):
+    b, root = _setup(skel, z, tol, cells)
+    out = _quadtree(b, *root)
+    return out, b.evaluations
+
+
+@pytest.mark.parametrize("name, z, tol", PLANES)
+def test_the_compiled_quadtree_is_the_numpy_one_bit_for_bit(name, z, tol):
+    skel = _skel(name)
+    b, root = _setup(skel, z, tol, ref)
+    want = ref._quadtree(b, *root)
+    got, evaluations = _compiled(skel, z, tol)
+    for a, w in zip(got[:7], want[:7]):
+        assert a.dtype == w.dtype and np.array_equal(a, w, equal_nan=True)
+    assert got[7] == want[7]                                    # cells examined
+    for a, w in zip(got[8], want[8]):                           # known centre values
+        assert np.array_equal(a, w, equal_nan=True)
+    assert evaluations == b.evaluations
+    state = got[4]
+    if name == "cross" and z == 0.3:
+        assert (state == cells.THIN).any()                      # crest cells were tried and settled
+    assert (state == cells.SIMPLE).any() and (state == cells.OUT).any()
+
+
+@pytest.mark.parametrize("name, z, tol", PLANES[:2] + PLANES[4:5])
+def test_the_compiled_quadtree_does_not_depend_on_the_thread_count(name, z, tol):
+    skel = _skel(name)
+    with serial():
+        one, e1 = _compiled(skel, z, tol)
+    with numba_threads(2):
+        two, e2 = _compiled(skel, z, tol)
+    assert e1 == e2 and one[7] == two[7]
+    for a, w in zip(one[:7] + tuple(one[8]), two[:7] + tuple(two[8])):
+        assert np.array_equal(a, w, equal_nan=True)
+
+
+def test_classify_and_ridge_of_arbitrary_discs_match_the_numpy_steps():
+    """``_Bounds.classify`` and ``_Bounds.ridge`` (the kernels' per-cell
+    functions on given discs) against the numpy steps, on the cross's crest plane."""
+    skel, z, tol = CROSS, 0.3, 1e-3
+    new, _ = _setup(skel, z, tol, cells)
+    old, _ = _setup(skel, z, tol, ref)
+    rng = np.random.default_rng(5)
+    cx = rng.uniform(-2.5, 2.5, 4000)
+    cy = np.where(rng.random(4000) < 0.5, rng.uniform(-0.05, 0.05, 4000), rng.uniform(-2.5, 2.5, 4000))
+    r = 0.5 * math.sqrt(2.0) * rng.choice([0.004, 0.02, 0.1], 4000) * (1.0 + SLACK)
+    a, b = new.classify(cx, cy, r), old.classify(cx, cy, r)
+    for x, y in zip(a[:3] + a[3], b[:3] + b[3]):
+        assert np.array_equal(x, y, equal_nan=True)
+    assert new.evaluations == old.evaluations > 0
+    ra, rb = new.ridge(cx, cy, r, a[3]), old.ridge(cx, cy, r, b[3])
+    assert np.array_equal(ra, rb)
+    assert (ra == cells.THIN).any() and (ra == cells.OUT).any()
+    assert new.evaluations == old.evaluations
