@@ -5,6 +5,7 @@ Usage::
     python benchmarks/kernel_profile.py [--job trace] [--model microstructure] [--pixels 256] [--layers 512]
                                         [--threads 1] [--frequency 999] [--json out.json]
     python benchmarks/kernel_profile.py --job render --pixels 700      # the renderer, iso view
+    python benchmarks/kernel_profile.py --job contours --model octet_2x2x2 --pixels 113 --layers 113
 
 ``perf`` samples Numba's machine code as anonymous memory: it cannot name the
 functions. This script runs the job in a child process under ``perf record``;
@@ -121,6 +122,25 @@ def _child(args) -> None:
             return render(skel, size=(args.pixels, args.pixels), view="iso")
 
         size = [args.pixels, args.pixels]
+    elif args.job == "contours":
+        from slicer.contours import each_plane, grid_box
+        from slicer.grid import make_grid
+
+        lo, hi = skel.support_bounds()
+        grid = make_grid(skel.support_bounds(), max(hi[0] - lo[0], hi[1] - lo[1]) / args.pixels,
+                         layer_height=(hi[2] - lo[2]) / args.layers)
+
+        class _Res:
+            stats: dict
+
+        def job():
+            res = _Res()
+            res.stats = {}
+            for _ in each_plane(skel, grid.centres_z(), 1e-3, grid_box(grid), res.stats):
+                pass
+            return res
+
+        size = [grid.width, grid.height, grid.layers]
     else:
         from slicer.grid import make_grid
         from slicer.slicing import trace
@@ -144,8 +164,9 @@ def _child(args) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python benchmarks/kernel_profile.py", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--job", choices=("trace", "render"), default="trace",
-                    help="trace (slicing, --pixels x --pixels x --layers) or render (--pixels square, iso view)")
+    ap.add_argument("--job", choices=("trace", "render", "contours"), default="trace",
+                    help="trace (slicing, --pixels x --pixels x --layers), render (--pixels square, iso view) "
+                         "or contours (the guaranteed contours, tol 1 um, of the --layers planes of that grid)")
     ap.add_argument("--model", default="microstructure")
     ap.add_argument("--pixels", type=int, default=256)
     ap.add_argument("--layers", type=int, default=512)

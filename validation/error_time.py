@@ -6,7 +6,8 @@ sample model into layer contours with
 * ``interval``, ``sampling``, ``segment``: the tracer's exact raster, then
   :mod:`slicer.contours` (root-refined vertices, chords refined to ``tol``);
 * ``guaranteed``: no raster at all: :func:`slicer.contours.plane_contours`
-  per layer (the adaptive quadtree settled by the field's bounds, every
+  per layer, the layers on the threads as the contour outputs run them
+  (:func:`slicer.contours.each_plane`; the adaptive quadtree settled by the field's bounds, every
   feature wider than ``tol``, vertices and chords to ``tol``);
 * ``dense``: the baseline of PySLM's implicit example: the field on the pixel
   grid of every layer (:func:`slicer.field.evaluate`), marching squares with
@@ -41,7 +42,7 @@ import numpy as np
 
 from sample_lattices import load_sample
 from slicer._kernels.launch import numba_threads
-from slicer.contours import grid_box, layer_mask, mask_rings, plane_contours
+from slicer.contours import each_plane, grid_box, layer_mask, mask_rings
 from slicer.field import evaluate
 from slicer.grid import make_grid
 from slicer.slicing import slice_skeleton, trace
@@ -129,8 +130,8 @@ def run_config(skel, cfg: dict, keep: set[int]) -> tuple[float, dict, dict]:
     t0 = time.perf_counter()
     if cfg["method"] == "guaranteed":
         box = grid_box(grid)
-        for k, z in enumerate(grid.centres_z()):
-            mp = plane_contours(skel, z, cfg["tol"], box, st)
+        # layer planes on the Numba threads at once, as the contour outputs compute them
+        for k, (z, mp) in enumerate(each_plane(skel, grid.centres_z(), cfg["tol"], box, st)):
             if k in keep:
                 out[k] = polygon_rings(mp)
     elif cfg["method"] == "dense":
