@@ -14,6 +14,7 @@ from slicer._kernels.ridgebounds import ridge_bounds, ridge_bounds_binned
 from slicer.contours.cells import COARSE_PIECES, INHERIT_BELOW, _bin_segments
 from slicer.contours.roots import FIELD_SLACK, _field
 from slicer.field import point_grid
+from slicer.ordering import stable_argsort
 from slicer.skeleton import Skeleton
 
 
@@ -311,3 +312,79 @@ def _put(a: np.ndarray, rows: np.ndarray, b: np.ndarray) -> np.ndarray:
     out = a.copy()
     out[rows] = b
     return out
+
+
+def boundary_walks(X0, Y0, X1, Y1):
+    """Counter-clockwise walks over the boundaries of leaves, through every
+    leaf corner lying on them.
+
+    Returns
+    -------
+    px, py : (v,) int64
+        Unique lattice points (corners of the given leaves).
+    leaf : (w,) int64
+        Leaf of each walk step (steps grouped by leaf, in walk order).
+    point : (w,) int64
+        Point index of each step.
+    """
+    cx = np.concatenate([X0, X1, X1, X0])
+    cy = np.concatenate([Y0, Y0, Y1, Y1])
+    big = int(max(cx.max(), cy.max())) + 2
+    n = X0.size
+    # the corners as unique points in (y, x) order, and each corner's point
+    keys = cy * big + cx
+    order = stable_argsort(keys)
+    sk = keys[order]
+    first = np.empty(sk.size, bool)
+    first[0] = True
+    np.not_equal(sk[1:], sk[:-1], out=first[1:])
+    uniq = sk[first]
+    point_of = np.empty(keys.size, np.int64)
+    point_of[order] = np.cumsum(first) - 1
+    c_bl, c_br, c_tr, c_tl = (point_of[i * n:(i + 1) * n] for i in range(4))
+    py, px = np.divmod(uniq, big)
+    # the same points in (x, y) order, and each point's rank there
+    ocol = stable_argsort(px * big + py)
+    col_rank = np.empty(ocol.size, np.int64)
+    col_rank[ocol] = np.arange(ocol.size)
+    # the four sides, each a run of interior points in walk order
+    # bottom: y = Y0, x from X0 to X1 (increasing); right: x = X1, y increasing;
+    # top: y = Y1, x decreasing; left: x = X0, y decreasing. The points strictly
+    # inside a side lie between its two corners in row (column) order.
+    bs, be = c_bl + 1, c_br
+    rs, re = col_rank[c_br] + 1, col_rank[c_tr]
+    ts, te = c_tl + 1, c_tr
+    ls, le = col_rank[c_bl] + 1, col_rank[c_tl]
+    counts = 4 + (be - bs) + (re - rs) + (te - ts) + (le - ls)
+    leaf = np.repeat(np.arange(n, dtype=np.int64), counts)
+    off = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    point = np.empty(leaf.size, np.int64)
+    # positions of each piece inside the leaf's run
+    pos_bl = off
+    pos_b = pos_bl + 1
+    pos_br = pos_b + (be - bs)
+    pos_r = pos_br + 1
+    pos_tr = pos_r + (re - rs)
+    pos_t = pos_tr + 1
+    pos_tl = pos_t + (te - ts)
+    pos_l = pos_tl + 1
+    point[pos_bl] = c_bl
+    point[pos_br] = c_br
+    point[pos_tr] = c_tr
+    point[pos_tl] = c_tl
+
+    def fill(pos, s, e, src, reverse):
+        m = e - s
+        tot = int(m.sum())
+        if tot == 0:
+            return
+        j = np.arange(tot) - np.repeat(np.cumsum(m) - m, m)
+        k = np.where(reverse, np.repeat(e, m) - 1 - j, np.repeat(s, m) + j)
+        point[np.repeat(pos, m) + j] = src[k]
+
+    row_idx = np.arange(uniq.size)             # rows: sorted order is the point order
+    fill(pos_b, bs, be, row_idx, False)
+    fill(pos_r, rs, re, ocol, False)
+    fill(pos_t, ts, te, row_idx, True)
+    fill(pos_l, ls, le, ocol, True)
+    return px, py, leaf, point

@@ -91,3 +91,16 @@ def test_classify_and_ridge_of_arbitrary_discs_match_the_numpy_steps():
     assert np.array_equal(ra, rb)
     assert (ra == cells.THIN).any() and (ra == cells.OUT).any()
     assert new.evaluations == old.evaluations
+
+
+@pytest.mark.parametrize("name, z, tol", PLANES[:3] + PLANES[4:5])
+def test_compiled_leaf_walks_are_the_numpy_ones(name, z, tol):
+    """The walks over the walked leaves' boundaries (slicer._kernels.contours.leaf_walks)
+    against the numpy steps: the same points, in the same order, and the same steps."""
+    (X0, Y0, X1, Y1, state, *_), _ = _compiled(_skel(name), z, tol)
+    act = np.flatnonzero(state >= cells.SIMPLE)
+    got = cells._boundary_walks(X0[act], Y0[act], X1[act], Y1[act])
+    want = ref.boundary_walks(X0[act], Y0[act], X1[act], Y1[act])
+    for a, w in zip(got, want):
+        assert a.dtype == w.dtype and np.array_equal(a, w)
+    assert got[2].size > 4 * act.size > 0          # some walks pass corners of smaller neighbours

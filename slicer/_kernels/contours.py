@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import kernel
+from .order import stable_order
 
 
 @kernel
@@ -78,3 +79,90 @@ def ring_areas(xy, starts):
             s2 += xy[j, 0] * xy[i, 1]
         out[q] = 0.5 * (s1 - s2)
     return out
+
+
+@kernel
+def _sorted_points(keys, passes):
+    """Unique ``keys`` in ascending order and each key's rank among them."""
+    order = stable_order(keys, passes)
+    rank = np.empty(keys.shape[0], np.int64)
+    uniq = np.empty(keys.shape[0], np.int64)
+    nu = -1
+    for j in range(keys.shape[0]):
+        k = keys[order[j]]
+        if nu < 0 or k != uniq[nu]:
+            nu += 1
+            uniq[nu] = k
+        rank[order[j]] = nu
+    return uniq[:nu + 1].copy(), rank
+
+
+@kernel
+def leaf_walks(X0, Y0, X1, Y1, passes):
+    """Counter-clockwise walks over the boundaries of leaves (lattice squares
+    ``[X0, X1] x [Y0, Y1]``), through every leaf corner lying on them
+    (:func:`slicer.contours.cells._boundary_walks` documents the results).
+
+    Each walk starts at its leaf's bottom-left corner: along the bottom (x
+    rising), the right side (y rising), the top (x falling), the left side (y
+    falling). The corners lying strictly inside a side are those between its
+    two end corners in row order (sides along x) or column order (along y).
+    ``passes``: radix digits of the largest key ``(max + 2)² `` (see
+    :func:`slicer._kernels.order.stable_order`).
+
+    Returns
+    -------
+    px, py : (v,) int64
+    leaf, point : (w,) int64
+    """
+    n = X0.shape[0]
+    big = max(X0.max(), X1.max(), Y0.max(), Y1.max()) + 2
+    keys = np.empty(4 * n, np.int64)
+    for i in range(n):
+        keys[i] = Y0[i] * big + X0[i]
+        keys[n + i] = Y0[i] * big + X1[i]
+        keys[2 * n + i] = Y1[i] * big + X1[i]
+        keys[3 * n + i] = Y1[i] * big + X0[i]
+    uniq, point_of = _sorted_points(keys, passes)
+    nv = uniq.shape[0]
+    py = uniq // big
+    px = uniq - py * big
+    cols = np.empty(nv, np.int64)
+    for p in range(nv):
+        cols[p] = px[p] * big + py[p]
+    ocol = stable_order(cols, passes)
+    col_rank = np.empty(nv, np.int64)
+    for k in range(nv):
+        col_rank[ocol[k]] = k
+    total = 0
+    for i in range(n):
+        bl, br, tr, tl = point_of[i], point_of[n + i], point_of[2 * n + i], point_of[3 * n + i]
+        total += 4 + (br - bl - 1) + (col_rank[tr] - col_rank[br] - 1) + (tr - tl - 1) + (col_rank[tl] - col_rank[bl] - 1)
+    leaf = np.empty(total, np.int64)
+    point = np.empty(total, np.int64)
+    w = 0
+    for i in range(n):
+        bl, br, tr, tl = point_of[i], point_of[n + i], point_of[2 * n + i], point_of[3 * n + i]
+        start = w
+        point[w] = bl
+        w += 1
+        for k in range(bl + 1, br):
+            point[w] = k
+            w += 1
+        point[w] = br
+        w += 1
+        for k in range(col_rank[br] + 1, col_rank[tr]):
+            point[w] = ocol[k]
+            w += 1
+        point[w] = tr
+        w += 1
+        for k in range(tr - 1, tl, -1):
+            point[w] = k
+            w += 1
+        point[w] = tl
+        w += 1
+        for k in range(col_rank[tl] - 1, col_rank[bl], -1):
+            point[w] = ocol[k]
+            w += 1
+        leaf[start:w] = i
+    return px, py, leaf, point
