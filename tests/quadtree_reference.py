@@ -1,7 +1,9 @@
-"""The guaranteed contours' quadtree as it was written before it became one
-compiled kernel: whole-array numpy steps per level over the cell-state passes.
-A naive reference for :func:`slicer._kernels.quadtree.quadtree` (leaves, states,
-bounds and counts bit for bit; tests/test_quadtree.py)."""
+"""The guaranteed contours' quadtree, leaf walks and crossing pairs as they were
+written before they became compiled kernels: whole-array numpy steps (per
+level, over the cell-state passes). Naive references for
+:func:`slicer._kernels.quadtree.quadtree`, :func:`slicer._kernels.contours.leaf_walks`
+and :func:`slicer._kernels.contours.pair_crossings` (bit for bit;
+tests/test_quadtree.py)."""
 from __future__ import annotations
 
 import math
@@ -388,3 +390,41 @@ def boundary_walks(X0, Y0, X1, Y1):
     fill(pos_t, ts, te, row_idx, True)
     fill(pos_l, ls, le, ocol, True)
     return px, py, leaf, point
+
+
+def pair_crossings(leaf, point, inside, npts: int):
+    """Sign changes along the leaves' walks, paired exit -> next entry in each leaf.
+
+    Returns
+    -------
+    ukey : (e,) int64
+        Elementary edges with a crossing, ``inside point * npts + outside point``.
+    succ : (e,) int64
+        The edge each one's segment leads to.
+    exit_leaf : (e,) int64
+        Walk-leaf index of the segment leaving each edge.
+    """
+    a_pt, b_pt = point, point[_next_in_group(leaf)]
+    cx_i = np.flatnonzero(inside[a_pt] != inside[b_pt])
+    if cx_i.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    exit_ = inside[a_pt[cx_i]]                     # inside -> outside going counter-clockwise
+    lf = leaf[cx_i]
+    nxt_c = _next_in_group(lf)                     # the partner of an exit: the next crossing
+    e_in = np.where(exit_, a_pt[cx_i], b_pt[cx_i])
+    e_out = np.where(exit_, b_pt[cx_i], a_pt[cx_i])
+    ukey, eid = np.unique(e_in * npts + e_out, return_inverse=True)
+    ex = np.flatnonzero(exit_)
+    succ = np.full(ukey.size, -1, np.int64)
+    succ[eid[ex]] = eid[nxt_c[ex]]
+    exit_leaf = np.full(ukey.size, -1, np.int64)
+    exit_leaf[eid[ex]] = lf[ex]
+    return ukey, succ, exit_leaf
+
+
+def _next_in_group(group: np.ndarray) -> np.ndarray:
+    """Index of the next element of the same (contiguous) group, cyclically."""
+    nxt = np.arange(group.size) + 1
+    last = np.flatnonzero(np.r_[group[1:] != group[:-1], True])
+    nxt[last] = np.r_[0, last[:-1] + 1]
+    return nxt

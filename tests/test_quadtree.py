@@ -16,7 +16,8 @@ from slicer import Skeleton
 from slicer._kernels.cellbounds import SLACK
 from slicer._kernels.launch import numba_threads, serial
 from slicer.contours import cells
-from slicer.contours.cells import THIN_FRACTION, _Bounds, _quadtree, _root_grid, plane_segments
+from slicer.contours.cells import THIN_FRACTION, _quadtree, _root_grid, plane_segments
+from slicer.field import evaluate
 
 #: four struts lying in the plane z = 0 meet a vertical one: planes z = ±0.3 touch them along crests
 CROSS = Skeleton([[0, 0, 0], [2, 0, 0], [-2, 0, 0], [0, 2, 0], [0, -2, 0], [0, 0, 1.5]],
@@ -104,3 +105,23 @@ def test_compiled_leaf_walks_are_the_numpy_ones(name, z, tol):
     for a, w in zip(got, want):
         assert a.dtype == w.dtype and np.array_equal(a, w)
     assert got[2].size > 4 * act.size > 0          # some walks pass corners of smaller neighbours
+
+
+@pytest.mark.parametrize("name, z, tol", PLANES[:3] + PLANES[4:5])
+def test_compiled_crossing_pairs_are_the_numpy_ones(name, z, tol):
+    """Crossings along the walks, paired exit -> next crossing
+    (slicer._kernels.contours.pair_crossings), against the numpy steps, with
+    the field's signs at the walks' points."""
+    skel = _skel(name)
+    b, (x0, y0, s0, nx, ny, levels) = _setup(skel, z, tol, cells)
+    X0, Y0, X1, Y1, state, *_ = _quadtree(b, x0, y0, s0, nx, ny, levels)
+    act = np.flatnonzero(state >= cells.SIMPLE)
+    px, py, leaf, point = cells._boundary_walks(X0[act], Y0[act], X1[act], Y1[act])
+    h = s0 / 2.0 ** levels
+    inside = evaluate(skel, np.column_stack([x0 + px * h, y0 + py * h, np.full(px.size, z)]))[0] >= 1.0
+    got = cells._pair_crossings(leaf, point, inside, px.size)
+    want = ref.pair_crossings(leaf, point, inside, px.size)
+    for a, w in zip(got, want):
+        assert np.array_equal(a, w)
+    assert got[0].size > 0 and (got[1] >= 0).all()
+    assert np.array_equal(cells.next_in_group(leaf), ref._next_in_group(leaf))

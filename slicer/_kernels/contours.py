@@ -166,3 +166,58 @@ def leaf_walks(X0, Y0, X1, Y1, passes):
             w += 1
         leaf[start:w] = i
     return px, py, leaf, point
+
+
+@kernel
+def next_in_group(group):
+    """Index of the next element of the same (contiguous) group, cyclically."""
+    n = group.shape[0]
+    nxt = np.empty(n, np.int64)
+    start = 0
+    for j in range(n):
+        if j + 1 == n or group[j + 1] != group[j]:
+            nxt[j] = start
+            start = j + 1
+        else:
+            nxt[j] = j + 1
+    return nxt
+
+
+@kernel
+def pair_crossings(leaf, point, inside, npts, passes):
+    """Sign changes along the leaves' walks, each exit from the inside paired
+    with the next crossing of its leaf's walk
+    (:func:`slicer.contours.cells._pair_crossings` documents the results).
+
+    ``passes``: radix digits of the largest edge key ``npts²`` (see
+    :func:`slicer._kernels.order.stable_order`).
+
+    Returns
+    -------
+    ukey, succ, exit_leaf : (e,) int64
+    """
+    nxt = next_in_group(leaf)
+    nc = 0
+    for j in range(leaf.shape[0]):
+        if inside[point[j]] != inside[point[nxt[j]]]:
+            nc += 1
+    cross = np.empty(nc, np.int64)
+    q = 0
+    for j in range(leaf.shape[0]):
+        if inside[point[j]] != inside[point[nxt[j]]]:
+            cross[q] = j
+            q += 1
+    lf = leaf[cross]
+    nxt_c = next_in_group(lf)
+    keys = np.empty(nc, np.int64)
+    for q in range(nc):
+        a, b = point[cross[q]], point[nxt[cross[q]]]
+        keys[q] = a * npts + b if inside[a] else b * npts + a     # inside point, outside point
+    ukey, eid = _sorted_points(keys, passes)
+    succ = np.full(ukey.shape[0], -1, np.int64)
+    exit_leaf = np.full(ukey.shape[0], -1, np.int64)
+    for q in range(nc):
+        if inside[point[cross[q]]]:         # inside -> outside going counter-clockwise: an exit
+            succ[eid[q]] = eid[nxt_c[q]]
+            exit_leaf[eid[q]] = lf[q]
+    return ukey, succ, exit_leaf

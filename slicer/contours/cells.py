@@ -39,7 +39,7 @@ import numpy as np
 from .._kernels.binning import bin_boxes
 from .._kernels.cellbounds import PIECES, SLACK
 from .._kernels.cellstate import IN, ONEDIR, OUT, SIMPLE, SMALL, THIN  # noqa: F401 (the leaf states, re-exported)
-from .._kernels.contours import chain_rings, leaf_walks
+from .._kernels.contours import chain_rings, leaf_walks, next_in_group, pair_crossings
 from .._kernels.order import DIGIT_BITS
 from .._kernels.quadtree import classify_cells, plane_data, quadtree, ridge_cells
 from ..errors import OptionError
@@ -326,42 +326,21 @@ def _root_grid(skel: Skeleton, ids: np.ndarray, tol: float, root_cell: float | N
     return xlo - s0, ylo - s0, s0, nx, ny, levels
 
 
-def _next_in_group(group: np.ndarray) -> np.ndarray:
-    """Index of the next element of the same (contiguous) group, cyclically."""
-    nxt = np.arange(group.size) + 1
-    last = np.flatnonzero(np.r_[group[1:] != group[:-1], True])
-    nxt[last] = np.r_[0, last[:-1] + 1]
-    return nxt
-
-
 def _pair_crossings(leaf, point, inside, npts: int):
-    """Sign changes along the leaves' walks, paired exit -> next entry in each leaf.
+    """Sign changes along the leaves' walks, paired exit -> next entry in each leaf
+    (:func:`slicer._kernels.contours.pair_crossings`).
 
     Returns
     -------
     ukey : (e,) int64
-        Elementary edges with a crossing, ``inside point * npts + outside point``.
+        Elementary edges with a crossing, ``inside point * npts + outside point``, ascending.
     succ : (e,) int64
         The edge each one's segment leads to.
     exit_leaf : (e,) int64
         Walk-leaf index of the segment leaving each edge.
     """
-    a_pt, b_pt = point, point[_next_in_group(leaf)]
-    cx_i = np.flatnonzero(inside[a_pt] != inside[b_pt])
-    if cx_i.size == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
-    exit_ = inside[a_pt[cx_i]]                     # inside -> outside going counter-clockwise
-    lf = leaf[cx_i]
-    nxt_c = _next_in_group(lf)                     # the partner of an exit: the next crossing
-    e_in = np.where(exit_, a_pt[cx_i], b_pt[cx_i])
-    e_out = np.where(exit_, b_pt[cx_i], a_pt[cx_i])
-    ukey, eid = np.unique(e_in * npts + e_out, return_inverse=True)
-    ex = np.flatnonzero(exit_)
-    succ = np.full(ukey.size, -1, np.int64)
-    succ[eid[ex]] = eid[nxt_c[ex]]
-    exit_leaf = np.full(ukey.size, -1, np.int64)
-    exit_leaf[eid[ex]] = lf[ex]
-    return ukey, succ, exit_leaf
+    passes = max(1, -(-(int(npts) * int(npts)).bit_length() // DIGIT_BITS))
+    return pair_crossings(leaf, point, np.ascontiguousarray(inside, np.bool_), int(npts), passes)
 
 
 def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray]:
@@ -412,7 +391,7 @@ def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray
         kq = np.where(state[lk] == SIMPLE, kappa[lk], np.inf)[order]
         ring = np.repeat(np.arange(starts.size - 1), np.diff(starts))
         rv = verts[order]
-        step = rv[_next_in_group(ring)] - rv        # chord i -> i + 1 of each ring, cyclically
+        step = rv[next_in_group(ring)] - rv        # chord i -> i + 1 of each ring, cyclically
         ell = np.hypot(step[:, 0], step[:, 1])
         with np.errstate(invalid="ignore", over="ignore"):
             ok = (SAGITTA * ell * ell * kq <= CHORD_FRACTION * tol) & (ell * kq <= 1.0)
