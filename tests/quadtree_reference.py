@@ -61,27 +61,7 @@ class _Bounds:
         return ridge_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation)
 
     def ridge(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, taylor) -> np.ndarray:
-        """OUT, THIN or -1 (unresolved) of cells on a crest of the field (docs/math.md §10.1).
-
-        With ``u``, ``v`` the frame of :meth:`ridge_bounds` and, over the disc,
-        ``F_vv <= −c < 0``, ``F_uu <= B_uu``, ``|F_uv| <= B_uv``: from any point
-        ``p*`` of the disc, ``F <= M = F(p*) + r |F_u(p*)| + r² max(B_uu, 0)/2 +
-        (|F_v(p*)| + r B_uv)²/(2c)`` over the disc (Taylor's remainder along
-        ``p − p*``, maximised over the offset along v). ``p*`` is the centre and
-        two steps towards the crest along v (Newton with ``c``, then secant), the
-        least M kept. ``M < 1``: outside. Otherwise F is strictly concave along
-        every line parallel to v, so each meets the section in one interval, no
-        longer than ``sqrt(8 (M − 1)/c)`` (its crest is at least ``c l²/8`` above
-        its ends): at most ``self.thin`` (``THIN_FRACTION`` of the finest leaves'
-        side) makes the cell THIN, a leaf walked like the finest ones: what it
-        holds is narrower than what their corners reliably see.
-
-        Parameters
-        ----------
-        cx, cy, r : (c,) float64, mm
-        taylor : tuple
-            ``(f, grad, G, H, U)`` at the centres (:meth:`classify`).
-        """
+        """OUT, THIN or -1 of :meth:`slicer.contours.cells._Bounds.ridge`, in numpy."""
         f0, g0, G = taylor[0], taylor[1], taylor[2]
         ux, uy, vv, uu, uv = self.ridge_bounds(cx, cy, r)
         state = np.full(cx.size, -1, np.int8)
@@ -128,27 +108,8 @@ class _Bounds:
         return f, g[:, :2]
 
     def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, inherited=None, values=None):
-        """State of each cell (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
-        a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none),
-        lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over it, (c, 2) float64,
-        1/mm (0: none), and the Taylor data of its centre: the field, (c,)
-        float64 (0 where the bound ``U`` already puts the cell outside: not
-        evaluated), the in-plane gradient, (c, 2) float64, 1/mm, and the bounds
-        ``G``, ``H`` and ``U`` over the disc.
-
-        ``inherited``: ``(G, H, U)`` of discs that contain these (a parent's
-        disc holds its children's), used as they are instead of new bounds.
-        ``values``: the field and in-plane gradient at the centres, ``(c,)`` and
-        ``(c, 2)``, when already known (no evaluation).
-
-        With neither (root cells), the discs first get cheap bounds
-        (``COARSE_PIECES`` pieces per segment); only the cells these leave
-        neither IN nor OUT get the full ones. The full bounds are at least as
-        tight, so the cells the cheap ones settle are those the full ones would
-        settle, in the same state; the others get the full bounds' state and
-        data. (Smaller cells need bounds of their own only where their parent's
-        left them unresolved, near the contour, where cheap bounds seldom
-        settle anything.)"""
+        """The states and Taylor data of :meth:`slicer.contours.cells._Bounds.classify`
+        (with ``inherited`` bounds or known ``values``: as the levels below the root take them)."""
         if inherited is not None or values is not None:
             return self._judge(cx, cy, r, inherited if inherited is not None else self.disc_bounds(cx, cy, r), values)
         state, kappa, slope, taylor = self._judge(cx, cy, r, self.disc_bounds(cx, cy, r, COARSE_PIECES), values)
@@ -205,23 +166,7 @@ class _Bounds:
 
 
 def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int, levels: int):
-    """Leaves of the quadtree over ``nx x ny`` root cells of side ``s0``.
-
-    Returns
-    -------
-    X0, Y0, X1, Y1 : (l,) int64
-        Leaf corners on the finest lattice (spacing ``s0 / 2**levels``).
-    state : (l,) int8
-    kappa : (l,) float64
-        Bound of the contour's curvature in each leaf, 1/mm.
-    slope : (l, 2) float64
-        Lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over each leaf, 1/mm.
-    cells : int
-        Cells examined.
-    known : ((k,) int64, (k,) int64, (k,) float64)
-        Lattice points ``(x, y)`` where the field is known: the centres of
-        the split cells (corners of their children), and its values there.
-    """
+    """The leaves of :func:`slicer.contours.cells._quadtree`, level by level in numpy."""
     iy, ix = np.divmod(np.arange(nx * ny, dtype=np.int64), nx)
     out = []
     known = []
