@@ -10,8 +10,10 @@ and the next level are gathered serially, in cell order. The arithmetic is
 that of the cell-state passes (:mod:`slicer._kernels.cellstate`), operation
 by operation, so the leaves do not depend on the thread count.
 
-A plane travels as one tuple, ``plane`` (:func:`plane_data` documents it);
-a level's cells and their parents' data as arrays indexed by cell.
+A plane travels as one pair, ``plane = (arrays, constants)``
+(:func:`plane_data` documents it), borrowed once per kernel so that the
+inlined per-cell steps count no references; a level's cells and their
+parents' data travel as arrays indexed by cell.
 """
 from __future__ import annotations
 
