@@ -18,6 +18,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator
 
+from ._kernels.launch import limit_pool
 from .errors import OptionError, require
 
 #: executor names accepted by :func:`open_executor` (and ``--executor``)
@@ -99,8 +100,9 @@ def _check(kind, workers, scheduler) -> None:
 
 
 def _limit_threads() -> None:
-    """Worker initialiser: keep each pool worker to one Numba thread."""
-    os.environ["NUMBA_NUM_THREADS"] = os.environ.get("NUMBA_NUM_THREADS", "1")
+    """Worker initialiser: keep each pool worker to one Numba thread
+    (:func:`slicer._kernels.launch.limit_pool`)."""
+    limit_pool(int(os.environ.get("NUMBA_NUM_THREADS", "1")))
 
 
 @contextlib.contextmanager

@@ -195,3 +195,42 @@ def test_pool_workers_get_numpy_arrays_not_the_scene(lattice):
     assert all(isinstance(a, np.ndarray) for a in args[:3]) and len(args[1]) < lattice.n_segments
     payload = pickle.dumps((trace_tile, args))
     assert len(payload) < 20_000
+
+
+_CACHED_KERNEL = '''
+import numpy as np
+from numba import njit, prange
+
+
+@njit(parallel=True, cache=True)
+def total(a):
+    s = 0.0
+    for i in prange(a.size):
+        s += a[i]
+    return s
+
+
+def task(_):
+    total(np.ones(100))            # loaded from the cache: the worker's threads start, no compile
+    fresh = njit(lambda x: x + 1)  # a later compile reloads Numba's configuration
+    return total(np.ones(100)) + fresh(1)
+'''
+
+
+def test_process_workers_may_compile_after_their_threads_started(tmp_path, monkeypatch):
+    """A process worker whose kernels come from Numba's cache starts its threads
+    without compiling; a compile after that reloads Numba's configuration. The
+    worker's thread limit must already be in it then, or Numba refuses to go on
+    ("Cannot set NUMBA_NUM_THREADS ... once the threads have been launched")."""
+    import numba
+
+    if numba.config.NUMBA_DEFAULT_NUM_THREADS < 2:
+        pytest.skip("one core: a worker's default thread count is already its limit")
+    (tmp_path / "cached_kernel_mod.py").write_text(_CACHED_KERNEL)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delenv("NUMBA_NUM_THREADS", raising=False)
+    import cached_kernel_mod
+
+    cached_kernel_mod.total(np.ones(10))            # fills the cache for the workers
+    with open_executor("processes", 1) as (ex, _):
+        assert list(ex.map(cached_kernel_mod.task, [0, 1])) == [102.0, 102.0]

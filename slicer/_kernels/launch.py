@@ -9,6 +9,7 @@ the Python thread that opened it: two tiles launched from two threads of the
 from __future__ import annotations
 
 import contextlib
+import os
 from typing import Callable
 
 import numba
@@ -20,6 +21,20 @@ from ..errors import OptionError
 def cores() -> int:
     """Threads in Numba's pool (``NUMBA_NUM_THREADS``, default: the cores)."""
     return int(numba.config.NUMBA_NUM_THREADS)
+
+
+def limit_pool(n: int) -> None:
+    """Make ``n`` the size of this process's Numba thread pool, before the pool starts.
+
+    For a fresh worker process (a pool initialiser). The limit goes into
+    Numba's configuration at once, not only into ``NUMBA_NUM_THREADS``:
+    Numba reads the environment again whenever it compiles, and a worker
+    whose kernels come from the cache starts its pool without compiling, so
+    a later compile would find another count and refuse to go on ("Cannot
+    set NUMBA_NUM_THREADS ... once the threads have been launched").
+    """
+    os.environ["NUMBA_NUM_THREADS"] = str(int(n))
+    numba.config.reload_config()
 
 
 @contextlib.contextmanager
