@@ -202,30 +202,64 @@ def classify_at(plane, cx, cy, r, kind, G, H, U, tol, pieces, coarse, fslack, sc
 @inline_kernel
 def _cell(plane, cx, cy, rr, k, kind, parents, crests, settings, scratch):
     """One cell of :func:`quadtree_level` (parent ``k``; no parents: a root
-    cell): settled from the parent's Taylor data, or classified
-    (:func:`classify_at`) and, where ``crests`` and it may hold a critical
-    point, tried as a crest cell (:func:`ridge_at`).
+    cell): settled from the parent's Taylor data (inlined: most cells end
+    here), or :func:`_classified`.
 
     Returns
     -------
     state, kappa, sx, sy, f, gx, gy, G, H, U, evaluations
         (NaN f, zero bounds and no evaluation when settled by the parent.)
     """
-    tol, thin, pieces, coarse, fslack, bslack = settings
     pcx, pcy, pf, pgx, pgy, pG, pH, pU = parents
-    have = pcx.shape[0] > 0
-    G = H = U = 0.0
-    if have:
-        st = settle_one(pf[k], pgx[k], pgy[k], pG[k], pH[k], rr, cx - pcx[k], cy - pcy[k], fslack)
-        if st >= 0:
-            return st, np.inf, 0.0, 0.0, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0
-        G, H, U = pG[k], pH[k], pU[k]
-    st, kp, ax, ay, f, gx, gy, G, H, U, ev = classify_at(plane, cx, cy, rr, kind if have else ROOT, G, H, U, tol,
-                                                           pieces, coarse, fslack, scratch)
+    if pcx.shape[0] == 0:
+        return _classified(plane, cx, cy, rr, ROOT, 0.0, 0.0, 0.0, crests, settings, scratch)
+    st = settle_one(pf[k], pgx[k], pgy[k], pG[k], pH[k], rr, cx - pcx[k], cy - pcy[k], settings[4])
+    if st >= 0:
+        return st, np.inf, 0.0, 0.0, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0
+    return _classified(plane, cx, cy, rr, kind, pG[k], pH[k], pU[k], crests, settings, scratch)
+
+
+@kernel
+def _classified(plane, cx, cy, rr, kind, G, H, U, crests, settings, scratch):
+    """A cell its parent did not settle: classified (:func:`classify_at`,
+    ``G, H, U`` the parent's bounds) and, where ``crests`` and it may hold a
+    critical point, tried as a crest cell (:func:`ridge_at`). A call, not
+    inlined: it is long, and each cell that gets here costs far more than
+    the call (the plane's arrays are borrowed: no reference counting).
+
+    Returns
+    -------
+    state, kappa, sx, sy, f, gx, gy, G, H, U, evaluations
+    """
+    tol, thin, pieces, coarse, fslack, bslack = settings
+    st, kp, ax, ay, f, gx, gy, G, H, U, ev = classify_at(plane, cx, cy, rr, kind, G, H, U, tol, pieces, coarse,
+                                                           fslack, scratch)
     if crests and st < 0 and crest_candidate(f, gx, gy, G, H, rr, thin, fslack, bslack):
         st, e2 = ridge_at(plane, cx, cy, rr, f, gx, gy, G, thin ** 2, fslack, scratch)
         ev += e2
     return st, kp, ax, ay, f, gx, gy, G, H, U, ev
+
+
+@kernel
+def _level_cells(plane, level, parents, settings, out, j0, j1):
+    """Cells ``j0:j1`` of :func:`quadtree_level` into ``out = (state, kappa,
+    sx, sy, taylor, evaluations)``, ``level = (ix, iy, x0, y0, s, rr, kind,
+    crests)``."""
+    ix, iy, x0, y0, s, rr, kind, crests = level
+    state, kappa, sx, sy, tay, evals = borrow(out)      # slicer._kernels.borrow: no reference counting
+    plane = (borrow(plane[0]), plane[1])
+    parents = borrow(parents)
+    own = np.empty(SCRATCH)
+    scratch = borrow(own)
+    for j in range(j0, j1):
+        cx = x0 + (ix[j] + 0.5) * s
+        cy = y0 + (iy[j] + 0.5) * s
+        st, kp, ax, ay, f, gx, gy, G, H, U, ev = _cell(plane, cx, cy, rr, j // 4, kind, parents, crests, settings,
+                                                       scratch)
+        state[j], kappa[j], sx[j], sy[j], evals[j] = st, kp, ax, ay, ev
+        tay[0, j], tay[1, j], tay[2, j], tay[3, j] = cx, cy, f, gx
+        tay[4, j], tay[5, j], tay[6, j], tay[7, j] = gy, G, H, U
+    keep_alive((own,))
 
 
 @parallel_kernel
@@ -255,29 +289,17 @@ def quadtree_level(plane, ix, iy, x0, y0, s, rr, kind, parents, crests, settings
     evaluations : int
     """
     nc = ix.shape[0]
-    state = np.empty(nc, np.int8)
-    kappa = np.empty(nc)
-    sx = np.empty(nc)
-    sy = np.empty(nc)
-    tay = np.empty((8, nc))
-    evals = np.zeros(nc, np.int64)
-    # slicer._kernels.borrow: the arguments outlive the call; the pair is rebuilt
-    # in each task (a parfor cannot take a tuple of arrays)
-    a0, a1, a2, a3, a4, a5, a6, a7, a8 = borrow(plane[0])
+    state, kappa, sx, sy = np.empty(nc, np.int8), np.empty(nc), np.empty(nc), np.empty(nc)
+    tay, evals = np.empty((8, nc)), np.zeros(nc, np.int64)
+    # a parfor cannot take a tuple of arrays: the tuples are rebuilt in each task
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = plane[0]
     consts = plane[1]
+    p0, p1, p2, p3, p4, p5, p6, p7 = parents
     for ch in prange((nc + CHUNK - 1) // CHUNK):
-        own = np.empty(SCRATCH)
-        scratch = borrow(own)
-        plane = ((a0, a1, a2, a3, a4, a5, a6, a7, a8), consts)
-        for j in range(ch * CHUNK, min(nc, (ch + 1) * CHUNK)):
-            cx = x0 + (ix[j] + 0.5) * s
-            cy = y0 + (iy[j] + 0.5) * s
-            st, kp, ax, ay, f, gx, gy, G, H, U, ev = _cell(plane, cx, cy, rr, j // 4, kind, parents, crests, settings,
-                                                           scratch)
-            state[j], kappa[j], sx[j], sy[j], evals[j] = st, kp, ax, ay, ev
-            tay[0, j], tay[1, j], tay[2, j], tay[3, j] = cx, cy, f, gx
-            tay[4, j], tay[5, j], tay[6, j], tay[7, j] = gy, G, H, U
-        keep_alive((own,))
+        # one call per task: the parfor's body stays small (fast to compile)
+        _level_cells(((a0, a1, a2, a3, a4, a5, a6, a7, a8), consts), (ix, iy, x0, y0, s, rr, kind, crests),
+                     (p0, p1, p2, p3, p4, p5, p6, p7), settings, (state, kappa, sx, sy, tay, evals),
+                     ch * CHUNK, min(nc, (ch + 1) * CHUNK))
     return state, kappa, sx, sy, tay, evals.sum()
 
 
