@@ -65,7 +65,14 @@ kernel = njit(nogil=True, **_COMMON)
 #: that bookkeeping costs more than the arithmetic)
 inline_kernel = njit(inline="always", nogil=True, **_COMMON)
 
+#: serial kernel compiled without Numba's reference counting (``_nrt=False``):
+#: for a kernel that allocates nothing and keeps no array beyond its call, as
+#: its caller holds every array it is given. Helpers inlined into it (the ray
+#: walks unpack tuples of work arrays in each) then cost no atomic or null-check
+#: calls; kernels it calls count references as usual
+unrefcounted_kernel = njit(nogil=True, _nrt=False, **_COMMON)
+
 #: parallel kernel (``prange`` over points, tiles or buckets)
 parallel_kernel = njit(parallel=True, nogil=True, **_COMMON)
 
-__all__ = ["CACHE", "kernel", "inline_kernel", "parallel_kernel"]
+__all__ = ["CACHE", "kernel", "inline_kernel", "unrefcounted_kernel", "parallel_kernel"]

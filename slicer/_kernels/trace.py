@@ -28,7 +28,7 @@ import math
 import numpy as np
 from numba import prange
 
-from .._jit import kernel, parallel_kernel
+from .._jit import inline_kernel, kernel, parallel_kernel, unrefcounted_kernel
 from .borrow import borrow, keep_alive
 from .field import segment_eval
 from .lazy import lazy_ends, settle, split_lazy
@@ -101,7 +101,7 @@ def _cluster_field(seg, hprim, hrec, order, a, b, px, py, z, m, inv_s2, norm, sc
     return f, nev
 
 
-@kernel
+@unrefcounted_kernel
 def trace_ray_interval(seg, boxes, ids, i0, i1, xy, col, prim, opt, bufs, rows, stack, cache, out):
     """Classify the K voxel centres of one ray (interval method).
 
@@ -125,13 +125,10 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, xy, col, prim, opt, bufs, rows, 
         lengths are the capacities).
 
     With ``spans``, also locate every crossing of F = 1 inside the grid's z
-    range [z0 - h/2, z0 + (K - 1/2) h] to within ``span_tol``: ambiguous
-    pieces holding no centre are split further (at a Hermite estimate of
-    the crossing, offset by span_tol / 2, or at the middle) until they are
-    settled or narrower than ``span_tol``. Crossings go to ``cz`` in
-    increasing order; the ray is outside below the first one, and they
-    alternate entry / exit. A ray inside at the grid's bottom (or top)
-    gets a crossing exactly there.
+    range [z0 - h/2, z0 + (K - 1/2) h] to within ``span_tol``
+    (:func:`_walk_piece`). Crossings go to ``cz`` in increasing order; the
+    ray is outside below the first one, and they alternate entry / exit. A
+    ray inside at the grid's bottom (or top) gets a crossing exactly there.
 
     With ``lazy`` (and neither spans nor ``strict``), the walk is lazy
     (:func:`slicer._kernels.lazy.split_lazy`): ``F`` / ``FH`` hold
@@ -147,233 +144,288 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, xy, col, prim, opt, bufs, rows, 
     nx : int
         Number of crossings written to ``cz``.
     """
-    px, py = xy
     z0, h, K = col
     n, sigma, norm, kmax = prim
     strict, cut_support, lazy, spans, span_tol = opt
     scratch, hprim, hrec, order, bps, sarr, mstat = bufs
-    st_f, st_fh, st_fp = rows
-    st_kind, st_t, st_k0, st_k1 = stack
-    ct, cf, cfp = cache
-    rk0, rk1, cz = out
-    cap = rk0.shape[0]
-    xcap = cz.shape[0]
-    m = n // 2
-    inv_s2 = 1.0 / (sigma * sigma)
+    ct = cache[0]
     zlo = z0 - 0.5 * h
     zhi = z0 + (K - 0.5) * h
-    lazy = lazy and not spans and not strict
-    ray = (px, py, 0.0, 0.0, 0.0, 1.0)
-    kp = (m, inv_s2, norm)
-    fh = st_fh if lazy else st_f     # eager: every bound is a value
-    cur = st_f.shape[0] - 1     # row of the values at the current point (stack slots below it)
-    nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, (n, sigma, norm, kmax), zlo, zhi, hprim, hrec, order)
+    nh = _ray_hits(seg, boxes, ids, i0, i1, xy[0], xy[1], prim, zlo, zhi, hprim, hrec, order)
     for r in range(nh):
         ct[r] = math.nan
-    nrun = 0
-    nev = 0
-    nx = 0
-    inside = False      # spans: the class of the last point whose value is known
-    leaps = not strict and not lazy
+    walk = (seg, hprim, hrec, sarr, (xy[0], xy[1], 0.0, 0.0, 0.0, 1.0), (n // 2, 1.0 / (sigma * sigma), norm),
+            scratch, rows, cache, mstat)
+    zs = (z0, h, K, zlo, zhi)
+    opt = (strict, cut_support, lazy and not spans and not strict, spans, span_tol)
+    tally = (0, 0, 0, False)
     a = 0
     while a < nh:
         b, cs, ce = next_cluster(hrec, order, a, nh)
-        kc0 = first_centre(cs, z0, h, K)
-        kc1 = first_centre(ce, z0, h, K) - 1
-        if kc1 >= kc0 or (spans and ce > zlo and cs < zhi):
-            # breakpoints: the cut t* of every member (EG22), and optionally
-            # every support entry and exit; with spans, the grid's z range
-            if spans:
-                nb = cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, zlo, zhi, bps)
-            else:
-                nb = cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, cs, cs, bps)
-            tlast = cs
-            j = -1
-            while j < nb - 2:
-                j += 1
-                ta = bps[j]
-                tb = bps[j + 1]
-                k0 = first_centre(ta, z0, h, K)
-                k1 = first_centre(tb, z0, h, K) - 1
-                if k1 < k0 and not (spans and tb > zlo and ta < zhi):
-                    continue
-                ns, fmax = piece_members(hrec, order, a, b, ta, tb, sarr)
-                if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
-                    # the primitives' bounds on the whole ray already exclude 1
-                    continue
-                if lazy:
-                    # the ends' values only as far as the piece's verdict needs them
-                    _, ne1 = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, cur, 0, mstat,
-                                       cache)
-                    nev += ne1
-                    fcur = 0.0
-                    for s in range(ns):
-                        fcur += st_f[cur, s]
-                else:
-                    fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, st_f, st_fp,
-                                           cur, ct, cf, cfp)
-                    nev += ne1
-                if spans and (fcur >= 1.0) != inside:
-                    # only after a skipped stretch (below the grid): enter here
-                    if nx >= xcap:
-                        return -1, nev, nx
-                    cz[nx] = ta
-                    nx += 1
-                    inside = not inside
-                if leaps and fcur >= 1.0 and j + 2 < nb:
-                    # inside at ta: settle as many breakpoints ahead as the
-                    # unimodal lower bound proves inside at once
-                    jj, ne1 = leap_chain(seg, hprim, hrec, sarr, ns, (st_f, st_fp), cur, ray, bps, j, nb, fcur, kp,
-                                         scratch, cache)
-                    nev += ne1
-                    if jj > j:
-                        nrun = _emit(k0, first_centre(bps[jj], z0, h, K) - 1, True, rk0, rk1, nrun, cap)
-                        if nrun < 0:
-                            return -1, nev, nx
-                        tlast = bps[jj]
-                        j = jj - 1
-                        continue
-                if not lazy:
-                    _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, st_f, st_fp, 0, ct, cf, cfp)
-                    nev += ne2
-                tcur = ta
-                sp = 1
-                st_kind[0] = 0
-                st_t[0] = tb
-                st_k0[0] = k0
-                st_k1[0] = k1
-                while sp > 0:
-                    sp -= 1
-                    p = sp
-                    if st_kind[p] == 1:
-                        nrun = _emit(st_k0[p], st_k0[p], st_k1[p] == 1, rk0, rk1, nrun, cap)
-                        if nrun < 0:
-                            return -1, nev, nx
-                        continue
-                    e_t = st_t[p]
-                    q0 = st_k0[p]
-                    q1 = st_k1[p]
-                    done = False
-                    if q1 < q0 and not spans:
-                        done = True
-                    else:
-                        lo, hi, mono = piece_bounds_iv(hrec, sarr, ns, st_f, fh, st_fp, cur, p,
-                                                       tcur, e_t, strict, mstat)
-                        pad = PAD * (1.0 + abs(hi))
-                        if lo > 1.0 + pad:
-                            nrun = _emit(q0, q1, True, rk0, rk1, nrun, cap)
-                            done = True
-                        elif hi < 1.0 - pad:
-                            done = True
-                        elif q1 < q0:
-                            # spans: no centre left; refine the crossing(s) to span_tol
-                            fe, dcur, de = piece_ends(st_f, st_fp, cur, p, ns)
-                            if (e_t - tcur <= span_tol or e_t <= zlo or tcur >= zhi
-                                    or (abs(fcur - 1.0) <= SURFACE_BAND and abs(fe - 1.0) <= SURFACE_BAND)):
-                                # narrow enough, outside the grid, or F within rounding of 1 at
-                                # both ends (a column lying in the surface): no more splits
-                                done = True
-                            else:
-                                if sp + 2 > st_kind.shape[0]:
-                                    return -1, nev, nx
-                                w = e_t - tcur
-                                ts = tcur + 0.5 * w
-                                if mono != 0 and (fcur - 1.0) * (fe - 1.0) < 0.0 and sp < DEEP_SPANS:
-                                    tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
-                                    if tr - tcur <= e_t - tr:
-                                        ts = tr + 0.5 * span_tol
-                                    else:
-                                        ts = tr - 0.5 * span_tol
-                                    ts = min(max(ts, tcur + 0.125 * w), e_t - 0.125 * w)
-                                fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ray, ts, kp, scratch, st_f, st_fp,
-                                                     p + 1, ct, cf, cfp)
-                                nev += ne1
-                                st_kind[p + 1] = 0
-                                st_t[p + 1] = ts
-                                st_k0[p + 1] = q0
-                                st_k1[p + 1] = q1
-                                sp = p + 2
-                                continue
-                        elif z0 + q0 * h == tcur:
-                            # the first centre sits on the left end: its value is known (lazy: as
-                            # far as its class needs)
-                            in0 = fcur >= 1.0
-                            if lazy:
-                                in0, ne1 = settle(seg, hprim, hrec, sarr, ns, ray, tcur, kp, scratch, rows, cur,
-                                                  mstat, (cur, p), False, cache)
-                                nev += ne1
-                            nrun = _emit(q0, q0, in0, rk0, rk1, nrun, cap)
-                            st_k0[p] = q0 + 1
-                            sp += 1
-                            if nrun < 0:
-                                return -1, nev, nx
-                            continue
-                    if nrun < 0:
-                        return -1, nev, nx
-                    if done:
-                        fe = 0.0
-                        for s in range(ns):
-                            fe += st_f[p, s]
-                        if spans and (fe >= 1.0) != inside:
-                            # one crossing (an odd number) in (tcur, e_t): place it
-                            fe, dcur, de = piece_ends(st_f, st_fp, cur, p, ns)
-                            tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
-                            if not (tr > tcur and tr < e_t):
-                                tr = 0.5 * (tcur + e_t)
-                            if nx >= xcap:
-                                return -1, nev, nx
-                            cz[nx] = tr
-                            nx += 1
-                            inside = not inside
-                        for s in range(ns):
-                            st_f[cur, s] = st_f[p, s]
-                            st_fh[cur, s] = st_fh[p, s]
-                            st_fp[cur, s] = st_fp[p, s]
-                        fcur = fe
-                        tcur = e_t
-                        continue
-                    # split at a centre, which is classified by its value: where F is
-                    # monotone and brackets 1 (one crossing), at the centre nearest the
-                    # Hermite estimate of the crossing; elsewhere at the middle centre
-                    km = (q0 + q1) // 2
-                    if mono != 0 and q1 > q0 and sp < DEEP_CENTRES:
-                        fe, dcur, de = piece_ends(st_f, st_fp, cur, p, ns)
-                        if (fcur - 1.0) * (fe - 1.0) < 0.0:
-                            tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
-                            kr = int(math.floor((tr - z0) / h + 0.5))
-                            km = min(max(kr, q0), q1)
-                    zm = z0 + km * h
-                    if sp + 3 > st_kind.shape[0]:
-                        # cannot happen for K < 2^70; keep the kernel total anyway
-                        return -1, nev, nx
-                    # right part keeps slot p (its right-end data are already there)
-                    st_k0[p] = km + 1
-                    if lazy:
-                        inm, ne1 = split_lazy(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, rows, cur, p, p + 2,
-                                              mstat, cache)
-                    else:
-                        fm, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, st_f, st_fp,
-                                             p + 2, ct, cf, cfp)
-                        inm = fm >= 1.0
-                    nev += ne1
-                    st_kind[p + 1] = 1
-                    st_k0[p + 1] = km
-                    st_k1[p + 1] = 1 if inm else 0
-                    st_kind[p + 2] = 0
-                    st_t[p + 2] = zm
-                    st_k0[p + 2] = q0
-                    st_k1[p + 2] = km - 1
-                    sp = p + 3
-                tlast = tb
-            if spans and inside:
-                # the rest of the cluster lies above the grid: leave at its top
-                if nx >= xcap:
-                    return -1, nev, nx
-                cz[nx] = min(tlast, zhi)
-                nx += 1
-                inside = False
+        tally = _trace_cluster(walk, order, bps, (a, b, cs, ce), zs, opt, stack, out, tally)
+        if tally[0] < 0:
+            break
         a = b
-    return nrun, nev, nx
+    return tally[0], tally[1], tally[2]
+
+
+@inline_kernel
+def _trace_cluster(walk, order, bps, clu, zs, opt, stack, out, tally):
+    """Walk the pieces of the cluster ``clu = (a, b, cs, ce)``: hits
+    ``order[a:b]`` spanning ``[cs, ce]``.
+
+    ``walk = (seg, hprim, hrec, sarr, ray, kp, scratch, rows, cache,
+    mstat)`` holds the ray's work data; ``zs = (z0, h, K, zlo, zhi)`` the
+    centres and the grid's z range (mm); ``opt`` as
+    :func:`trace_ray_interval` (``lazy`` only where the lazy walk applies);
+    ``tally = (nrun, nevals, nx, inside)`` the ray's counts so far and, with
+    spans, whether it is inside at the cluster's start. Returns the updated
+    tally (``nrun`` -1 when a buffer is full).
+
+    The pieces run between the cluster's breakpoints: every member's cut t*
+    (EG22), optionally every support entry and exit, and with spans the
+    grid's ends. A piece the members' bounds on the whole ray keep below 1
+    is skipped; inside at its start, the unimodal lower bound may settle
+    several pieces at once (:func:`slicer._kernels.rays.leap_chain`); any
+    other piece is walked (:func:`_walk_piece`).
+    """
+    seg, hprim, hrec, sarr, ray, kp, scratch, rows, cache, mstat = walk
+    st_f, st_fh, st_fp = rows
+    z0, h, K, zlo, zhi = zs
+    strict, cut_support, lazy, spans, span_tol = opt
+    a, b, cs, ce = clu
+    nrun, nev, nx, inside = tally
+    if first_centre(ce, z0, h, K) <= first_centre(cs, z0, h, K) and not (spans and ce > zlo and cs < zhi):
+        return tally
+    nb = cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, zlo if spans else cs, zhi if spans else cs, bps)
+    cur = st_f.shape[0] - 1
+    tlast = cs
+    j = -1
+    while j < nb - 2 and nrun >= 0 and nx >= 0:
+        j += 1
+        ta, tb = bps[j], bps[j + 1]
+        k0, k1 = first_centre(ta, z0, h, K), first_centre(tb, z0, h, K) - 1
+        if k1 < k0 and not (spans and tb > zlo and ta < zhi):
+            continue
+        ns, fmax = piece_members(hrec, order, a, b, ta, tb, sarr)
+        if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
+            continue
+        if lazy:   # the ends' values only as far as the piece's verdict needs them
+            _, ne = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, cur, 0, mstat, cache)
+            fcur = _row_sum(st_f, cur, ns)
+        else:
+            fcur, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, st_f, st_fp, cur, *cache)
+        nev += ne
+        if spans and (fcur >= 1.0) != inside:   # only after a skipped stretch (below the grid): enter here
+            nx = _crossing(out[2], nx, ta)
+            inside = not inside
+        if not strict and not lazy and fcur >= 1.0 and j + 2 < nb:
+            # inside at ta: settle as many breakpoints ahead as the unimodal lower bound proves inside at once
+            jj, ne = leap_chain(seg, hprim, hrec, sarr, ns, (st_f, st_fp), cur, ray, bps, j, nb, fcur, kp, scratch,
+                                cache)
+            nev += ne
+            if jj > j:
+                nrun = _emit(k0, first_centre(bps[jj], z0, h, K) - 1, True, out[0], out[1], nrun, out[0].shape[0])
+                tlast = bps[jj]
+                j = jj - 1
+                continue
+        if not lazy:
+            _, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, st_f, st_fp, 0, *cache)
+            nev += ne
+        nrun, nev, nx, inside = _walk_piece(walk, ns, (ta, tb, k0, k1, fcur), zs, opt, stack, out,
+                                            (nrun, nev, nx, inside))
+        tlast = tb
+    if spans and inside:   # the rest of the cluster lies above the grid: leave at its top
+        nx = _crossing(out[2], nx, min(tlast, zhi))
+        inside = False
+    return (nrun, nev, nx, inside) if nx >= 0 else (-1, nev, nx, inside)
+
+
+@inline_kernel
+def _row_sum(F, row, ns):
+    """Sum of ``F[row, :ns]``."""
+    f = 0.0
+    for s in range(ns):
+        f += F[row, s]
+    return f
+
+
+@inline_kernel
+def _crossing(cz, nx, t):
+    """Append the crossing ``t`` to ``cz``; the new count, or -1 when full
+    (or already -1)."""
+    if nx < 0 or nx >= cz.shape[0]:
+        return -1
+    cz[nx] = t
+    return nx + 1
+
+
+@inline_kernel
+def _push(st_kind, st_t, st_k0, st_k1, p, kind, t, k0, k1):
+    """Write stack slot ``p``: a piece (kind 0) ending at ``t`` and holding
+    centres ``k0..k1``, or a centre ``k0`` already classified (kind 1,
+    ``k1`` 1 inside, 0 outside)."""
+    st_kind[p] = kind
+    st_t[p] = t
+    st_k0[p] = k0
+    st_k1[p] = k1
+
+
+@inline_kernel
+def _walk_piece(walk, ns, piece, zs, opt, stack, out, tally):
+    """Classify the centres ``k0..k1`` of the piece ``piece = (ta, tb, k0,
+    k1, F(ta))``, whose end values are in the current row and slot 0
+    (arguments as :func:`_trace_cluster`).
+
+    Pieces wait on the stack; a split leaves the right part in its slot and
+    pushes the split centre and the left part. A piece the interval bound
+    settles emits its centres' class (:func:`_settle_end`); a piece whose
+    first centre sits on its left end classifies it from the known value;
+    any other is split at a centre (:func:`_centre_split`). With spans, an
+    ambiguous piece holding no centre is split further
+    (:func:`_span_split`) until it is settled or narrower than ``span_tol``
+    (:func:`_span_done`), and every crossing is placed.
+    """
+    seg, hprim, hrec, sarr, ray, kp, scratch, rows, cache, mstat = walk
+    st_f, st_fh, st_fp = rows
+    st_kind, st_t, st_k0, st_k1 = stack
+    z0, h, K, zlo, zhi = zs
+    strict, cut_support, lazy, spans, span_tol = opt
+    ta, tb, k0, k1, fcur = piece
+    nrun, nev, nx, inside = tally
+    rk0, rk1, cz = out
+    fh = st_fh if lazy else st_f     # eager: every bound is a value
+    cur = st_f.shape[0] - 1
+    tcur = ta
+    _push(st_kind, st_t, st_k0, st_k1, 0, 0, tb, k0, k1)
+    sp = 1
+    while sp > 0 and nrun >= 0 and nx >= 0:
+        sp -= 1
+        p = sp
+        q0, q1, e_t = st_k0[p], st_k1[p], st_t[p]
+        if st_kind[p] == 1:
+            nrun = _emit(q0, q0, q1 == 1, rk0, rk1, nrun, rk0.shape[0])
+            continue
+        if q1 >= q0 or spans:
+            lo, hi, mono = piece_bounds_iv(hrec, sarr, ns, st_f, fh, st_fp, cur, p, tcur, e_t, strict, mstat)
+            pad = PAD * (1.0 + abs(hi))
+            if lo > 1.0 + pad:
+                nrun = _emit(q0, q1, True, rk0, rk1, nrun, rk0.shape[0])
+            elif hi < 1.0 - pad or (q1 < q0 and _span_done(st_f, ns, p, (tcur, e_t, fcur), zs, span_tol)):
+                pass
+            elif sp + 3 > st_kind.shape[0]:
+                return -1, nev, nx, inside   # cannot happen for K < 2^70; keep the kernel total anyway
+            elif q1 < q0:   # spans: no centre left; refine the crossing(s) to span_tol
+                ts = _span_split(st_f, st_fp, ns, p, (tcur, e_t, fcur, mono), span_tol)
+                _, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, ts, kp, scratch, st_f, st_fp, p + 1, *cache)
+                nev += ne
+                _push(st_kind, st_t, st_k0, st_k1, p + 1, 0, ts, q0, q1)
+                sp = p + 2
+                continue
+            elif z0 + q0 * h == tcur:
+                # the first centre sits on the left end: its value is known (lazy: as far as its class needs)
+                in0 = fcur >= 1.0
+                if lazy:
+                    in0, ne = settle(seg, hprim, hrec, sarr, ns, ray, tcur, kp, scratch, rows, cur, mstat, (cur, p),
+                                     False, cache)
+                    nev += ne
+                nrun = _emit(q0, q0, in0, rk0, rk1, nrun, rk0.shape[0])
+                st_k0[p] = q0 + 1
+                sp += 1
+                continue
+            else:
+                km = _centre_split(st_f, st_fp, ns, p, (tcur, e_t, fcur, mono, q0, q1), z0, h)
+                zm = z0 + km * h
+                st_k0[p] = km + 1
+                if lazy:
+                    inm, ne = split_lazy(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, rows, cur, p, p + 2, mstat,
+                                         cache)
+                else:
+                    fm, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, st_f, st_fp, p + 2, *cache)
+                    inm = fm >= 1.0
+                nev += ne
+                _push(st_kind, st_t, st_k0, st_k1, p + 1, 1, zm, km, 1 if inm else 0)
+                _push(st_kind, st_t, st_k0, st_k1, p + 2, 0, zm, q0, km - 1)
+                sp = p + 3
+                continue
+        fcur, nx, inside = _settle_end(st_f, st_fh, st_fp, ns, p, (tcur, e_t, fcur), spans, inside, cz, nx)
+        tcur = e_t
+    return nrun, nev, nx, inside
+
+
+@inline_kernel
+def _span_done(F, ns, p, piece, zs, span_tol):
+    """Whether an ambiguous piece ``piece = (tcur, e_t, F(tcur))`` (right end
+    in slot ``p``) holding no centre needs no more splits: narrow enough,
+    outside the grid, or F within rounding of 1 at both ends (a column lying
+    in the surface)."""
+    z0, h, K, zlo, zhi = zs
+    tcur, e_t, fcur = piece
+    fe = _row_sum(F, p, ns)
+    return (e_t - tcur <= span_tol or e_t <= zlo or tcur >= zhi
+            or (abs(fcur - 1.0) <= SURFACE_BAND and abs(fe - 1.0) <= SURFACE_BAND))
+
+
+@inline_kernel
+def _span_split(F, FP, ns, p, piece, span_tol):
+    """Where to split the ambiguous piece ``piece = (tcur, e_t, F(tcur),
+    mono)`` (right end in slot ``p``, no centre) to locate its crossing: at
+    the Hermite estimate offset by ``span_tol / 2`` toward the nearer end
+    where F is monotone and brackets 1 (up to DEEP_SPANS deep), else at the
+    middle; never within w/8 of an end."""
+    tcur, e_t, fcur, mono = piece
+    fe, dcur, de = piece_ends(F, FP, F.shape[0] - 1, p, ns)
+    w = e_t - tcur
+    ts = tcur + 0.5 * w
+    if mono != 0 and (fcur - 1.0) * (fe - 1.0) < 0.0 and p < DEEP_SPANS:
+        tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
+        if tr - tcur <= e_t - tr:
+            ts = tr + 0.5 * span_tol
+        else:
+            ts = tr - 0.5 * span_tol
+        ts = min(max(ts, tcur + 0.125 * w), e_t - 0.125 * w)
+    return ts
+
+
+@inline_kernel
+def _centre_split(F, FP, ns, p, piece, z0, h):
+    """The centre at which to split the piece ``piece = (tcur, e_t, F(tcur),
+    mono, q0, q1)`` (right end in slot ``p``): where F is monotone and
+    brackets 1 (one crossing), the centre nearest the Hermite estimate of
+    the crossing (up to DEEP_CENTRES deep); elsewhere the middle centre."""
+    tcur, e_t, fcur, mono, q0, q1 = piece
+    km = (q0 + q1) // 2
+    if mono != 0 and q1 > q0 and p < DEEP_CENTRES:
+        fe, dcur, de = piece_ends(F, FP, F.shape[0] - 1, p, ns)
+        if (fcur - 1.0) * (fe - 1.0) < 0.0:
+            tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
+            kr = int(math.floor((tr - z0) / h + 0.5))
+            km = min(max(kr, q0), q1)
+    return km
+
+
+@inline_kernel
+def _settle_end(F, FH, FP, ns, p, piece, spans, inside, cz, nx):
+    """Finish the settled piece ``piece = (tcur, e_t, F(tcur))`` whose right
+    end is in slot ``p``: with spans, place its one crossing (an odd number
+    lies in it when the class changes) at the Hermite estimate; the right
+    end becomes the current point. Returns (F(e_t), nx, inside), ``nx`` -1
+    when ``cz`` is full."""
+    tcur, e_t, fcur = piece
+    cur = F.shape[0] - 1
+    fe = _row_sum(F, p, ns)
+    if spans and (fe >= 1.0) != inside:
+        fe, dcur, de = piece_ends(F, FP, cur, p, ns)
+        tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
+        if not (tr > tcur and tr < e_t):
+            tr = 0.5 * (tcur + e_t)
+        nx = _crossing(cz, nx, tr)
+        inside = not inside
+    for s in range(ns):
+        F[cur, s] = F[p, s]
+        FH[cur, s] = FH[p, s]
+        FP[cur, s] = FP[p, s]
+    return fe, nx, inside
 
 
 @kernel
