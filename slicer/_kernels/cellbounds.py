@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numba import prange
 
-from .._jit import inline_kernel, kernel, parallel_kernel
+from .._jit import inline_kernel, parallel_kernel, unrefcounted_kernel
 from .borrow import borrow
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 from .raysupport import kprime_max
@@ -34,7 +34,7 @@ from .raysupport import kprime_max
 SLACK = 1e-9
 
 
-@kernel
+@unrefcounted_kernel
 def _reach_interval(seg, i, cx, cy, cz, r, sigma):
     """Arc-length interval of segment ``i`` whose support balls, grown by ``r``,
     hold ``c``: ``‖c − q(t)‖ < στ(t) + r``, clipped to [0, L] (empty: tb <= ta)."""
@@ -62,7 +62,7 @@ def _reach_interval(seg, i, cx, cy, cz, r, sigma):
     return max(ta, 0.0), min(tb, L)
 
 
-@kernel
+@unrefcounted_kernel
 def kernel_curvature_max(n, sigma, norm):
     """``max(max|k''|, max|k'(s)/s|)`` of ``k(s) = N (1 − s²/σ²)^(n/2)`` (docs/math.md §10).
 
@@ -127,7 +127,7 @@ def _second_sup(ulo, uhi, m):
     return 2.0 * (m - 1.0) * u * _ipow(1.0 - u, m - 2)
 
 
-@kernel
+@unrefcounted_kernel
 def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces):
     """Slope, curvature and value bounds of segment ``i`` over the disc, from the
     axis points ``t`` in ``[ta, tb]``, split into ``pieces`` pieces: on a piece,
@@ -242,7 +242,7 @@ def _end_distances(wx, wy, wz, ux, uy, uz, t):
     return q, q + z * z
 
 
-@kernel
+@unrefcounted_kernel
 def _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
     """Upper bound over the disc of ``|∇ψ(p − a)| + |∇ψ(p − b)|``, ψ the integrand
     at the segment's ends ``a`` and ``b`` (radii τ0 and τ1)."""
@@ -267,7 +267,7 @@ def _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
 GOLDEN = 1.6180339887498950
 
 
-@kernel
+@unrefcounted_kernel
 def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces):
     """:func:`disc_bounds` of one disc from the segments ``lst[a:b]`` (in that
     order; those whose support cannot reach the disc add nothing).

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from .._jit import inline_kernel, kernel
+from .._jit import inline_kernel, unrefcounted_kernel
 
 SCRATCH = 72
 # 1/k for k < 256: the moment series multiplies instead of dividing per term
@@ -156,7 +156,7 @@ def _clip_linear(h, c0, lo, hi):
     return lo, hi, False, False
 
 
-@kernel
+@unrefcounted_kernel
 def _support_local(seg, i, px, py, pz, inv_s2):
     """Support interval of segment ``i`` at p, in arc lengths measured from a
     local origin ``to``: the foot of p on the axis, clamped to [0, L]
@@ -210,7 +210,7 @@ def _support_local(seg, i, px, py, pz, inv_s2):
     return to, e, lo, hi, root_a, root_b, qx, qy, qz, perp2, tau_o
 
 
-@kernel
+@unrefcounted_kernel
 def support_interval(seg, i, px, py, pz, inv_s2):
     """Arc-length interval [ta, tb] of segment ``i`` whose support ball holds p.
 
@@ -475,7 +475,7 @@ def _grad_sums_m3(a, y, d):
     return h0, h1
 
 
-@kernel
+@unrefcounted_kernel
 def _series_m3(Y, d, l, r0, r1, r2, m, grad):
     """:func:`_series` for the default kernel n = 6 (m = 3): the same
     operations in the same order on scalars (bit-identical results), without
@@ -503,7 +503,7 @@ def _series_m3(Y, d, l, r0, r1, r2, m, grad):
     return f, h0, h1
 
 
-@kernel
+@unrefcounted_kernel
 def segment_eval(seg, i, px, py, pz, m, inv_s2, norm, grad, scratch):
     """Field of segment ``i`` at p, and its gradient if ``grad``.
 

@@ -21,7 +21,7 @@ one row per stack slot (:func:`slicer._kernels.rays.walk_buffers`);
 """
 from __future__ import annotations
 
-from .._jit import inline_kernel, kernel
+from .._jit import inline_kernel, unrefcounted_kernel
 from .field import segment_eval
 from .rays import PAD, piece_bounds_iv, prim_bound
 from .raysupport import H_FMAX, H_TIN, H_TOUT
@@ -90,7 +90,7 @@ def _sums(F, FH, row, ns):
     return lo, hi, smax
 
 
-@kernel
+@unrefcounted_kernel
 def split_lazy(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, ia, ib, row, mstat, cache):
     """Bounds at the split point ``t`` of the piece between rows ``ia`` and
     ``ib`` into ``row``, and the class of ``t``.
@@ -118,7 +118,7 @@ def split_lazy(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, ia, ib, ro
     return inside, nev + ne
 
 
-@kernel
+@unrefcounted_kernel
 def settle(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, row, mstat, stretch, keep_sign, cache):
     """The class ``F(t) >= 1`` of the point of ``row``, evaluating its
     unknown primitives widest bound first until the summed bound clears 1 by
@@ -180,7 +180,7 @@ def bound_at(hrec, r, t, cache):
     return 0.0, hrec[r, H_FMAX], 0.0
 
 
-@kernel
+@unrefcounted_kernel
 def lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, ia, ib, mstat, cache):
     """Rows ``ia``/``ib`` at the ends of the piece ``[ta, tb]`` from
     :func:`bound_at`, then exact values for the primitives with the widest
@@ -235,7 +235,7 @@ def lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, ia, ib
         hi += b1 - b0
 
 
-@kernel
+@unrefcounted_kernel
 def complete_row(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, rows, row, cache):
     """Exact values in ``row`` at ``t`` for every primitive still bounded
     there (known ones are kept: an earlier evaluation at the same t gave

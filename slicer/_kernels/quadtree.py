@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import prange
 
-from .._jit import inline_kernel, kernel, parallel_kernel
+from .._jit import inline_kernel, kernel, parallel_kernel, unrefcounted_kernel
 from .borrow import borrow, keep_alive
 from .brackets import np_maximum, np_minimum
 from .cellbounds import SLACK, _disc, kernel_curvature_max, square_of
@@ -135,7 +135,7 @@ def _crest_bound(f, gx, gy, G, ux, uy, r, fixed, uv, curv, fslack):
     return f + fslack * (1.0 + abs(f)) + r * gu + fixed + q * q / (2.0 * curv)
 
 
-@kernel
+@unrefcounted_kernel
 def ridge_at(plane, cx, cy, r, f0, gx0, gy0, G, thin2, fslack, scratch):
     """OUT, THIN or -1 of one crest cell (docs/math.md §10.1): the bound ``M``
     from the centre and two steps towards the crest along v (Newton, then
@@ -219,7 +219,7 @@ def _cell(plane, cx, cy, rr, k, kind, parents, crests, settings, scratch):
     return _classified(plane, cx, cy, rr, kind, pG[k], pH[k], pU[k], crests, settings, scratch)
 
 
-@kernel
+@unrefcounted_kernel
 def _classified(plane, cx, cy, rr, kind, G, H, U, crests, settings, scratch):
     """A cell its parent did not settle: classified (:func:`classify_at`,
     ``G, H, U`` the parent's bounds) and, where ``crests`` and it may hold a

@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from .._jit import inline_kernel, kernel
+from .._jit import inline_kernel, kernel, unrefcounted_kernel
 from .field import SCRATCH, segment_eval
 from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz
 
@@ -63,7 +63,7 @@ def walk_buffers(nl, stack):
             np.empty(nl), np.empty(nl), np.empty(nl))
 
 
-@kernel
+@unrefcounted_kernel
 def first_centre(t, z0, h, K):
     """Smallest k with ``z0 + k h >= t`` (clamped to [0, K]): the first voxel centre
     at or above height ``t`` of a column of ``K`` centres ``z0 + k h``."""
@@ -81,7 +81,7 @@ def first_centre(t, z0, h, K):
     return k
 
 
-@kernel
+@unrefcounted_kernel
 def sort_hits(hrec, order, nh):
     """``order[:nh]`` = the hits ``hrec[:nh]`` sorted by support entry t_in
     (insertion sort, stable: bucket lists arrive nearly sorted)."""
@@ -97,7 +97,7 @@ def sort_hits(hrec, order, nh):
         order[b + 1] = v
 
 
-@kernel
+@unrefcounted_kernel
 def next_cluster(hrec, order, a, nh):
     """The cluster of overlapping supports that starts at sorted hit ``a``.
 
@@ -117,7 +117,7 @@ def next_cluster(hrec, order, a, nh):
     return b, cs, ce
 
 
-@kernel
+@unrefcounted_kernel
 def piece_members(hrec, order, a, b, ta, tb, sarr):
     """The members of the cluster ``order[a:b]`` whose support interval meets
     the piece ``(ta, tb)``, into ``sarr`` (hit rows, cluster order).
@@ -141,7 +141,7 @@ def piece_members(hrec, order, a, b, ta, tb, sarr):
     return ns, fmax
 
 
-@kernel
+@unrefcounted_kernel
 def cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, x0, x1, bps):
     """The breakpoints of the cluster ``order[a:b]`` spanning ``[cs, ce]``
     into ``bps``, sorted and unique; returns their count.
@@ -176,7 +176,7 @@ def cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, x0, x1, bps):
     return sort_unique(bps, nb)
 
 
-@kernel
+@unrefcounted_kernel
 def sort_unique(vals, nv):
     """Sort ``vals[:nv]`` in place and drop repeated values; returns the new count."""
     for a in range(1, nv):
@@ -196,7 +196,7 @@ def sort_unique(vals, nv):
     return w
 
 
-@kernel
+@unrefcounted_kernel
 def eval_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, ct, cf, cfp):
     """Value and directional derivative ``grad f . d`` of the active primitives
     ``hprim[sarr[:ns]]`` at ``o + t d`` (``ray = (ox, oy, oz, dx, dy, dz)``,
@@ -249,7 +249,7 @@ FIRST_LEAP = 4
 MAX_LEAP = 64
 
 
-@kernel
+@unrefcounted_kernel
 def inside_leap(seg, hprim, hrec, sarr, ns, F, FP, cur, ray, tb, goal, kp, scratch, cache):
     """Whether ``F >= 1`` holds on all of ``[ta, tb]`` along the ray, proven
     from values (docs/math.md §5.6).
@@ -313,7 +313,7 @@ def inside_leap(seg, hprim, hrec, sarr, ns, F, FP, cur, ray, tb, goal, kp, scrat
     return False, nev
 
 
-@kernel
+@unrefcounted_kernel
 def leap_chain(seg, hprim, hrec, sarr, ns, rows, cur, ray, bps, j, nb, fcur, kp, scratch, cache):
     """How far the ray is proven inside from breakpoint ``bps[j]``, where
     row ``cur`` of ``F`` (``rows = (F, FP)``) holds the exact values of the
@@ -351,7 +351,7 @@ def leap_chain(seg, hprim, hrec, sarr, ns, rows, cur, ray, bps, j, nb, fcur, kp,
     return jj, nev
 
 
-@kernel
+@unrefcounted_kernel
 def piece_bounds(hrec, sarr, ns, F, FP, ia, ib, ta, tb, strict):
     """Interval ``[lo, hi]`` of the summed field of the active primitives on
     the ray piece ``[ta, tb]``, and whether the sum is monotone there.
@@ -410,7 +410,7 @@ def prim_bound(hrec, r, f0, f1, g0, g1, d0, d1, ta, tb, strict):
     return min(f0, f1), hi, 2
 
 
-@kernel
+@unrefcounted_kernel
 def piece_bounds_iv(hrec, sarr, ns, F, FH, FP, ia, ib, ta, tb, strict, mstat):
     """:func:`piece_bounds` from per-primitive *bounds* at the piece's ends.
 
@@ -447,7 +447,7 @@ def piece_bounds_iv(hrec, sarr, ns, F, FH, FP, ia, ib, ta, tb, strict, mstat):
     return lo, hi, mono
 
 
-@kernel
+@unrefcounted_kernel
 def piece_ends(F, FP, ia, ib, ns):
     """Sums over the ``ns`` active primitives of a piece whose ends are rows
     ``ia`` (left) and ``ib`` (right): F at its right end, and F' at its left
@@ -462,7 +462,7 @@ def piece_ends(F, FP, ia, ib, ns):
     return fe, da, db
 
 
-@kernel
+@unrefcounted_kernel
 def hermite_point(ta, tb, ga, gb, da, db):
     """Root estimate in ``[ta, tb]`` of g from ``g`` and ``g'`` at both ends.
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from .._jit import inline_kernel, kernel
+from .._jit import inline_kernel, unrefcounted_kernel
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 
 # layout of the per-hit record written by ray_support into a row of ``hrec``
@@ -17,7 +17,7 @@ H_TIN, H_TOUT, H_TSTAR, H_LIP, H_S0, H_S1, H_TP0, H_TP1, H_FMAX, H_REACH = range
 NHIT = 10
 
 
-@kernel
+@unrefcounted_kernel
 def kprime_abs(x, n, sigma, norm):
     """|k'(x)| of the kernel k(x) = N (1 - x^2/sigma^2)^(n/2)."""
     if x >= sigma:
@@ -26,7 +26,7 @@ def kprime_abs(x, n, sigma, norm):
     return norm * n * x / (sigma * sigma) * a ** (n // 2 - 1)
 
 
-@kernel
+@unrefcounted_kernel
 def kprime_max(n, sigma, norm):
     """max |k'| = (n/sqrt(n-1)) (1 - 1/(n-1))^(n/2-1) N/sigma (EG22, docs/math.md §1.3)."""
     if n == 2:
@@ -34,7 +34,7 @@ def kprime_max(n, sigma, norm):
     return n / math.sqrt(n - 1.0) * (1.0 - 1.0 / (n - 1.0)) ** (n // 2 - 1) * norm / sigma
 
 
-@kernel
+@unrefcounted_kernel
 def _quad_neg_interval(A, B, C):
     """Sub-interval of [0, 1] where A s^2 + 2 B s + C < 0, assuming the
     valid branch is the one on the growing-radius side when A < 0.
@@ -258,7 +258,7 @@ def _field_bound(xmin, n, sigma, norm, L, s0, s1, tmin):
     return kx * L * (s1 - s0) / tmin * (1.0 + 1e-12)
 
 
-@kernel
+@unrefcounted_kernel
 def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, hrec, row):
     """Intersect ray ``o + t d`` with the support of segment ``i``.
 
@@ -322,7 +322,7 @@ def ray_support(seg, i, ox, oy, oz, dx, dy, dz, n, sigma, norm, kmax, hrec, row)
     return True
 
 
-@kernel
+@unrefcounted_kernel
 def lipschitz(hrec, r, ta, tb):
     """Bound on |f'(t)| for t in [ta, tb] from a hit record (docs/math.md §4.2).
 

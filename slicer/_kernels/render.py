@@ -45,7 +45,7 @@ import math
 import numpy as np
 from numba import prange
 
-from .._jit import kernel, parallel_kernel
+from .._jit import kernel, parallel_kernel, unrefcounted_kernel
 from .borrow import borrow, keep_alive
 from .field import segment_eval
 from .lazy import complete_row, lazy_ends
@@ -67,7 +67,7 @@ SH_LIGHT, SH_FRONT, SH_BACK, SH_AMB, SH_DIFF, SH_SPEC, SH_SHINE, SH_ALPHA, SH_MA
 NSHADE = 17
 
 
-@kernel
+@unrefcounted_kernel
 def pixel_ray(cam, i, j):
     """Origin and unit direction of the ray through the centre of pixel (i, j).
 
@@ -104,7 +104,7 @@ def pixel_rays(cam, W, H, origin, direction):
             direction[j, i, 2] = dz
 
 
-@kernel
+@unrefcounted_kernel
 def field_grad_along(seg, hprim, sarr, ns, ray, t, kp, scratch):
     """F, its gradient (1/mm) and ``grad F . d`` at ``o + t d`` over the active
     primitives (no cache: refinement points are never revisited);
@@ -127,7 +127,7 @@ def field_grad_along(seg, hprim, sarr, ns, ray, t, kp, scratch):
     return F, Gx, Gy, Gz, Gx * dx + Gy * dy + Gz * dz
 
 
-@kernel
+@unrefcounted_kernel
 def refine_root(seg, hprim, sarr, ns, ray, a, b, ga, gb, da, db, tol, bisect, kp, scratch):
     """Converge on the crossing bracketed by ``[a, b]`` of the ray ``ray =
     (ox, oy, oz, dx, dy, dz)`` until it is narrower than ``tol`` (``kp =
@@ -198,7 +198,7 @@ def refine_root(seg, hprim, sarr, ns, ray, a, b, ga, gb, da, db, tol, bisect, kp
     return t, gx, gy, gz, nev, have
 
 
-@kernel
+@unrefcounted_kernel
 def shade_crossing(shade, dx, dy, dz, gx, gy, gz, rgb):
     """Colour of one crossing into ``rgb`` (3,): outward normal ``-grad F``;
     the front colour where it faces the viewer (entry surface), the back
@@ -239,7 +239,7 @@ def shade_crossing(shade, dx, dy, dz, gx, gy, gz, rgb):
         rgb[c3] = min(max(v, 0.0), 1.0)
 
 
-@kernel
+@unrefcounted_kernel
 def render_ray(seg, boxes2d, ids, i0, i1, cam, ij, prim, opt, shade, bufs, rows, cache, out):
     """All crossings of the ray of pixel ``ij = (i, j)``, shaded and composited.
 

@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import prange
 
-from .._jit import inline_kernel, kernel, parallel_kernel
+from .._jit import inline_kernel, parallel_kernel, unrefcounted_kernel
 from .borrow import borrow
 from .cellbounds import (PIECES, SLACK, _end_distances, _end_slopes, _ipow, _reach_interval, _second_sup,
                          single_bin, square_of)
@@ -29,7 +29,7 @@ from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 from .raysupport import kprime_max
 
 
-@kernel
+@unrefcounted_kernel
 def _nearest_axis(seg, lst, a, b, cx, cy, cz, r, sigma):
     """In-plane unit direction ``(ux, uy)`` of the segment of ``lst[a:b]`` whose axis
     is nearest ``c`` relative to its radius there, among those whose support can
@@ -98,7 +98,7 @@ def _piece_weights(wx, wy, wz, ax, ay, az, tau_lo, tau_hi, t0, t1, r, sigma, m, 
             ln * _ipow(1.0 - u_lo, m - 1) * it3)
 
 
-@kernel
+@unrefcounted_kernel
 def _segment_frame(seg, i, cx, cy, cz, r, ta, tb, ux, uy, n, sigma, norm, k1):
     """Bounds over the disc of segment ``i``'s ``f_vv`` and ``f_uu`` (above) and
     ``|f_uv|``, from the axis points in ``[ta, tb]`` cut into ``PIECES`` pieces
@@ -158,7 +158,7 @@ def _segment_frame(seg, i, cx, cy, cz, r, ta, tb, ux, uy, n, sigma, norm, k1):
     return fvv, fuu, fuv, mag
 
 
-@kernel
+@unrefcounted_kernel
 def _frame_disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1):
     """:func:`ridge_bounds` of one disc from the segments ``lst[a:b]``.
 

@@ -48,7 +48,7 @@ DEEP_CENTRES = 96
 DEEP_SPANS = 150
 
 
-@kernel
+@unrefcounted_kernel
 def _emit(k0, k1, inside, rk0, rk1, nrun, cap):
     """Append centres k0..k1 (inclusive) with one class to the ray's runs.
 
@@ -66,7 +66,7 @@ def _emit(k0, k1, inside, rk0, rk1, nrun, cap):
     return nrun + 1
 
 
-@kernel
+@unrefcounted_kernel
 def _ray_hits(seg, boxes, ids, i0, i1, px, py, prim, zlo, zhi, hprim, hrec, order):
     """Hit records of the bucket's segments ids[i0:i1] with the vertical ray
     at (px, py), kept if they reach [zlo, zhi]; returns the count, sorted by t_in
@@ -86,7 +86,7 @@ def _ray_hits(seg, boxes, ids, i0, i1, px, py, prim, zlo, zhi, hprim, hrec, orde
     return nh
 
 
-@kernel
+@unrefcounted_kernel
 def _cluster_field(seg, hprim, hrec, order, a, b, px, py, z, m, inv_s2, norm, scratch):
     """Field at (px, py, z) of the cluster members order[a:b] whose support
     interval holds z; returns (F, evaluations)."""
@@ -428,7 +428,7 @@ def _settle_end(F, FH, FP, ns, p, piece, spans, inside, cz, nx):
     return fe, nx, inside
 
 
-@kernel
+@unrefcounted_kernel
 def trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, col, kp, scratch, active, rk0, rk1, cap):
     """Classify the K centres of one ray by evaluating the field at each,
     over the z-sorted active window of the bucket list ids[i0:i1];
@@ -469,7 +469,7 @@ def trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, col, kp, scratch, active
     return nrun, nev
 
 
-@kernel
+@unrefcounted_kernel
 def trace_ray_segment(seg, boxes, ids, i0, i1, xy, col, prim, scratch, hprim, hrec, order, rk0, rk1, cap):
     """Classify the K centres of the ray at ``xy = (px, py)`` with segment
     tracing (GGPP20); ``col = (z0, h, K)``, ``prim = (n, sigma, N, kmax)``.

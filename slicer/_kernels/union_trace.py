@@ -38,7 +38,7 @@ import math
 import numpy as np
 from numba import prange
 
-from .._jit import kernel, parallel_kernel
+from .._jit import parallel_kernel, unrefcounted_kernel
 from .borrow import borrow, keep_alive
 from .field import SCRATCH, segment_eval
 from .rays import PAD, SURFACE_BAND, first_centre
@@ -56,7 +56,7 @@ C_RUN, C_X, C_EV = range(3)
 W_T, W_F, W_D, W_PX, W_PY = range(5)
 
 
-@kernel
+@unrefcounted_kernel
 def strut_value(seg, g, hrec, r, px, py, t, m, inv_s2, norm, scratch):
     """``(f, df/dz)`` of segment ``g`` at ``(px, py, t)``; zero outside the open
     support interval of hit record ``r``."""
@@ -66,7 +66,7 @@ def strut_value(seg, g, hrec, r, px, py, t, m, inv_s2, norm, scratch):
     return f, gz
 
 
-@kernel
+@unrefcounted_kernel
 def strut_bounds(hrec, r, ta, tb, f0, d0, f1, d1, strict):
     """Interval ``[lo, hi]`` of one strut's field on ``[ta, tb]`` and whether it
     is monotone there (+1 / -1, else 0), from its values and slopes at the ends
@@ -85,7 +85,7 @@ def strut_bounds(hrec, r, ta, tb, f0, d0, f1, d1, strict):
     return min(f0, f1), hi, 0
 
 
-@kernel
+@unrefcounted_kernel
 def hermite_root(ta, tb, ga, gb, da, db):
     """Root in ``[ta, tb]`` of the cubic Hermite interpolant of ``g`` (values
     ``ga``, ``gb`` of opposite signs, slopes ``da``, ``db``), by bisection of the
@@ -114,7 +114,7 @@ def hermite_root(ta, tb, ga, gb, da, db):
     return ta + 0.5 * (lo + hi) * w
 
 
-@kernel
+@unrefcounted_kernel
 def emit(runs, cnt, k0, k1):
     """Append centres ``k0..k1`` (inclusive) as an inside run, joined to the
     previous run when they touch; False when the buffer is full."""
@@ -135,7 +135,7 @@ def emit(runs, cnt, k0, k1):
     return True
 
 
-@kernel
+@unrefcounted_kernel
 def add_crossing(xs, cnt, t):
     """Append a crossing height; False when the buffer is full (after merging
     the complete spans already there)."""
@@ -152,7 +152,7 @@ def add_crossing(xs, cnt, t):
     return True
 
 
-@kernel
+@unrefcounted_kernel
 def merge_runs(runs, n):
     """Sort the half-open runs ``runs[:n]`` by start and join those that
     overlap or touch; returns the new count."""
@@ -177,7 +177,7 @@ def merge_runs(runs, n):
     return w
 
 
-@kernel
+@unrefcounted_kernel
 def merge_spans(xs, n, gap, z0, h):
     """Sort the spans ``(xs[2i], xs[2i+1])`` of ``xs[:n]`` by start and join
     those that overlap or touch, and those less than ``gap`` (mm) apart with
@@ -212,7 +212,7 @@ def merge_spans(xs, n, gap, z0, h):
     return 2 * w
 
 
-@kernel
+@unrefcounted_kernel
 def _closable(end, start, gap, z0, h):
     """Whether the gap ``(end, start)`` between two spans is narrower than
     ``gap`` and holds no voxel centre ``z0 + k h``."""
@@ -226,7 +226,7 @@ def _closable(end, start, gap, z0, h):
     return not z0 + k * h < start
 
 
-@kernel
+@unrefcounted_kernel
 def centre_split(q0, q1, ta, fa, da, tb, fb, db, z0, h, mono, deep):
     """The centre at which an ambiguous piece holding centres ``q0..q1`` is split."""
     km = (q0 + q1) // 2
@@ -237,7 +237,7 @@ def centre_split(q0, q1, ta, fa, da, tb, fb, db, z0, h, mono, deep):
     return km
 
 
-@kernel
+@unrefcounted_kernel
 def gap_split(ta, fa, da, tb, fb, db, mono, deep, span_tol):
     """The height at which an ambiguous piece holding no centre is split
     (spans): next to the Hermite estimate of a bracketed crossing, else the middle."""
@@ -250,7 +250,7 @@ def gap_split(ta, fa, da, tb, fb, db, mono, deep, span_tol):
     return ts
 
 
-@kernel
+@unrefcounted_kernel
 def push_piece(st, sti, p, t, f, d, q0, q1):
     """Stack slot ``p`` := a piece ending at ``t`` (value f, slope d) holding centres q0..q1."""
     st[p, 0] = t
@@ -261,7 +261,7 @@ def push_piece(st, sti, p, t, f, d, q0, q1):
     sti[p, 2] = q1
 
 
-@kernel
+@unrefcounted_kernel
 def settle_gap(cur, te, fe, zlo, zhi, span_tol):
     """Whether a centre-free ambiguous piece from ``cur`` to ``te`` needs no
     more splits: narrow enough, outside the grid, or f within rounding of 1
@@ -271,7 +271,7 @@ def settle_gap(cur, te, fe, zlo, zhi, span_tol):
             or (abs(cur[W_F] - 1.0) <= SURFACE_BAND and abs(fe - 1.0) <= SURFACE_BAND))
 
 
-@kernel
+@unrefcounted_kernel
 def split_piece(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, p, mono, deep):
     """Split the ambiguous piece in stack slot ``p`` (see :func:`walk_strut`);
     returns the new stack size.
@@ -305,7 +305,7 @@ def split_piece(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, p, mono, de
     return p + 3
 
 
-@kernel
+@unrefcounted_kernel
 def place_crossing(cur, te, fe, de, xs, cnt):
     """One crossing (an odd number) in ``(cur t, te)``, a piece whose ends differ
     in class: at the Hermite estimate (the middle if it falls outside)."""
@@ -315,7 +315,7 @@ def place_crossing(cur, te, fe, de, xs, cnt):
     return add_crossing(xs, cnt, tr)
 
 
-@kernel
+@unrefcounted_kernel
 def start_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt):
     """Push the strut's pieces ``[t_in, t*]`` and ``[t*, t_out]`` (one piece when
     ``t*`` is not inside) and set the current point to ``t_in`` (f = f' = 0);
@@ -340,7 +340,7 @@ def start_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt):
     return sp
 
 
-@kernel
+@unrefcounted_kernel
 def walk_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, runs, xs):
     """Classify the centres of one strut's support on a ray (module docstring).
 
@@ -411,7 +411,7 @@ def walk_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, runs, xs):
     return True
 
 
-@kernel
+@unrefcounted_kernel
 def covered(runs, n, k0, k1):
     """Whether centres ``k0..k1`` all lie in one of the runs ``runs[:n]``."""
     for a in range(n):
@@ -420,7 +420,7 @@ def covered(runs, n, k0, k1):
     return False
 
 
-@kernel
+@unrefcounted_kernel
 def union_ray(seg, boxes, ids, i0, i1, fp, ip, kp, bufs, runs, xs, cnt):
     """Runs (and crossings) of one ray of the union, merged; see the module docstring.
 
@@ -459,7 +459,7 @@ def union_ray(seg, boxes, ids, i0, i1, fp, ip, kp, bufs, runs, xs, cnt):
     return True
 
 
-@kernel
+@unrefcounted_kernel
 def sampling_ray(seg, boxes, ids, i0, i1, fp, ip, kp, bufs, runs, cnt):
     """Runs of one ray of the union by evaluating ``max_i f_i`` at every centre
     (the sampling method), over the z-sorted bucket list ``ids[i0:i1]``."""
@@ -498,7 +498,7 @@ def sampling_ray(seg, boxes, ids, i0, i1, fp, ip, kp, bufs, runs, cnt):
     return True
 
 
-@kernel
+@unrefcounted_kernel
 def store_ray(runs, xs, cnt, rk0, rk1, room, cz, xroom):
     """Copy a ray's merged runs and crossings to the bucket's output; False
     when they do not fit."""
