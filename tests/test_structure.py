@@ -234,7 +234,7 @@ KERNEL_MAX_PARAMS = 15
 #: that all take the walk's arrays, they measured 1.4-2.8x slower: Numba
 #: reference-counts every array passed at every call (docs/development.md,
 #: "Why the walk's arrays travel loose")
-KERNEL_OVERSIZED = {"render.py:render_ray": (187, 14)}
+KERNEL_OVERSIZED: dict[str, tuple[int, int]] = {}
 
 
 def _function_sizes(tree: ast.AST, where: str) -> dict[str, tuple[int, int]]:

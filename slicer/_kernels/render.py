@@ -45,7 +45,7 @@ import math
 import numpy as np
 from numba import prange
 
-from .._jit import kernel, parallel_kernel, unrefcounted_kernel
+from .._jit import inline_kernel, kernel, parallel_kernel, unrefcounted_kernel
 from .borrow import borrow, keep_alive
 from .field import segment_eval
 from .lazy import complete_row, lazy_ends
@@ -287,22 +287,41 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, ij, prim, opt, shade, bufs, rows,
     int
         Number of crossings found, or -1 when ``roots`` was too small.
     """
-    i, j = ij
     n, sigma, norm, kmax = prim
-    tol, strict, bisect, cut_support, lazy, keep_roots = opt
     scratch, hprim, hrec, order, bps, sarr, mstat, st_t = bufs
-    st_f, st_fh, st_fp = rows
-    ct, cf, cfp = cache
-    rgb, roots, out4, counts = out
-    cap = roots.shape[0]
-    m = n // 2
-    inv_s2 = 1.0 / (sigma * sigma)
-    ox, oy, oz, dx, dy, dz = pixel_ray(cam, i, j)
-    ray = (ox, oy, oz, dx, dy, dz)
-    kp = (m, inv_s2, norm)
-    cur = st_f.shape[0] - 1     # row of the values at the current point (stack slots below it)
-    u = i + 0.5
-    v = j + 0.5
+    ray = pixel_ray(cam, ij[0], ij[1])
+    nh = _pixel_hits(seg, boxes2d, ids, i0, i1, ij, ray, prim, hprim, hrec)
+    for r in range(nh):
+        cache[0][r] = math.nan
+    sort_hits(hrec, order, nh)
+    walk = (seg, hprim, hrec, sarr, ray, (n // 2, 1.0 / (sigma * sigma), norm), scratch, rows, cache, mstat)
+    # composite so far: premultiplied RGB, alpha, opacity cut passed, crossings, ray finished
+    acc = (0.0, 0.0, 0.0, 0.0, False, 0, False)
+    a = 0
+    while a < nh and not acc[6]:
+        b, cs, ce = next_cluster(hrec, order, a, nh)
+        acc = _render_cluster(walk, order, bps, st_t, (a, b, max(cs, 0.0), ce), opt, shade, out, acc)
+        a = b
+    out4 = out[2]
+    if acc[5] >= 0:
+        out4[0] = acc[0]
+        out4[1] = acc[1]
+        out4[2] = acc[2]
+        out4[3] = acc[3]
+    return acc[5]
+
+
+@unrefcounted_kernel
+def _pixel_hits(seg, boxes2d, ids, i0, i1, ij, ray, prim, hprim, hrec):
+    """Hit records (unsorted) of the bucket's segments ``ids[i0:i1]`` with
+    the camera ray ``ray = (ox, oy, oz, dx, dy, dz)`` of pixel ``ij``, kept
+    if the support is not wholly behind the origin; returns the count. A
+    segment whose screen box misses the pixel centre is skipped before the
+    exact test."""
+    n, sigma, norm, kmax = prim
+    ox, oy, oz, dx, dy, dz = ray
+    u = ij[0] + 0.5
+    v = ij[1] + 0.5
     nh = 0
     for r in range(i0, i1):
         g = ids[r]
@@ -312,121 +331,151 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, ij, prim, opt, shade, bufs, rows,
             if hrec[nh, H_TOUT] > 0.0:
                 hprim[nh] = g
                 nh += 1
-    for a in range(nh):
-        ct[a] = math.nan
-    sort_hits(hrec, order, nh)
-    alpha = shade[SH_ALPHA]
-    maxa = shade[SH_MAXA]
-    opaque = shade[SH_OPAQUE] != 0.0
-    if opaque:
-        alpha = 1.0
-    acc_r = 0.0
-    acc_g = 0.0
-    acc_b = 0.0
-    acc_a = 0.0
-    cut = False
-    nroot = 0
-    a = 0
-    while a < nh:
-        # cluster of overlapping supports order[a:b] spanning [cs, ce]
-        b, cs, ce = next_cluster(hrec, order, a, nh)
-        if cs < 0.0:
-            cs = 0.0
-        nb = cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, cs, cs, bps)
-        piece = -1
-        while piece < nb - 2:
-            piece += 1
-            ta = bps[piece]
-            tb = bps[piece + 1]
-            ns, fmax = piece_members(hrec, order, a, b, ta, tb, sarr)
-            if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
-                continue   # the primitives' bounds on the whole ray exclude 1
-            if strict or not lazy:
-                fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, st_f, st_fp, cur, ct, cf, cfp)
-                if not strict and fcur >= 1.0 and piece + 2 < nb:
-                    # inside at ta: no crossing as far as the unimodal lower bound reaches
-                    jj, ne = leap_chain(seg, hprim, hrec, sarr, ns, (st_f, st_fp), cur, ray, bps, piece, nb, fcur,
-                                        kp, scratch, cache)
-                    counts[0] += ne
-                    if jj > piece:
-                        counts[0] += ne1
-                        piece = jj - 1
-                        continue
-                _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, st_f, st_fp, 0, ct, cf, cfp)
-            else:
-                settled, ne = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, cur, 0, mstat,
-                                        cache)
+    return nh
+
+
+@inline_kernel
+def _render_cluster(walk, order, bps, st_t, clu, opt, shade, out, acc):
+    """Walk the pieces of the cluster ``clu = (a, b, cs, ce)`` (hits
+    ``order[a:b]`` spanning ``[cs, ce]``, ``cs >= 0``) of a camera ray.
+
+    ``walk = (seg, hprim, hrec, sarr, ray, kp, scratch, rows, cache,
+    mstat)`` holds the ray's work data, ``st_t`` the piece stack; ``opt``,
+    ``shade`` and ``out`` as :func:`render_ray`; ``acc`` the composite so
+    far (:func:`render_ray`). A piece the members' bounds on the whole ray
+    keep below 1 is skipped; eager, a piece inside at its start may be
+    settled with the ones after it (:func:`slicer._kernels.rays.leap_chain`);
+    lazy, a piece the lazy bounds settle is skipped. Any other piece is
+    walked from the exact values at its ends (:func:`_render_piece`).
+    Returns the updated composite.
+    """
+    seg, hprim, hrec, sarr, ray, kp, scratch, rows, cache, mstat = walk
+    st_f, st_fh, st_fp = rows
+    tol, strict, bisect, cut_support, lazy, keep_roots = opt
+    counts = out[3]
+    a, b, cs, ce = clu
+    cur = st_f.shape[0] - 1
+    nb = cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, cs, cs, bps)
+    piece = -1
+    while piece < nb - 2 and not acc[6]:
+        piece += 1
+        ta = bps[piece]
+        tb = bps[piece + 1]
+        ns, fmax = piece_members(hrec, order, a, b, ta, tb, sarr)
+        if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
+            continue   # the primitives' bounds on the whole ray exclude 1
+        if strict or not lazy:
+            fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, st_f, st_fp, cur, *cache)
+            if not strict and fcur >= 1.0 and piece + 2 < nb:
+                # inside at ta: no crossing as far as the unimodal lower bound reaches
+                jj, ne = leap_chain(seg, hprim, hrec, sarr, ns, (st_f, st_fp), cur, ray, bps, piece, nb, fcur,
+                                    kp, scratch, cache)
                 counts[0] += ne
-                if settled:
-                    continue   # no crossing on the piece
-                # an ambiguous piece is walked from the exact values at its ends
-                fcur, ne1 = complete_row(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, rows, cur, cache)
-                _, ne2 = complete_row(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, rows, 0, cache)
-            counts[0] += ne1 + ne2
-            tcur = ta
-            st_t[0] = tb
-            sp = 1
-            while sp > 0:
-                p = sp - 1
-                te = st_t[p]
-                fe, d0, d1 = piece_ends(st_f, st_fp, cur, p, ns)
-                lo, hi, mono = piece_bounds(hrec, sarr, ns, st_f, st_fp, cur, p, tcur, te, strict)
-                pad = PAD * (1.0 + abs(hi))
-                width = te - tcur
-                tm = tcur + 0.5 * width
-                settle = lo > 1.0 + pad or hi < 1.0 - pad
-                if not settle and mono == 0 and width > tol and p + 2 <= MAX_STACK \
-                        and tm > tcur and tm < te:
-                    # ambiguous: split at the middle; the right part keeps slot p
-                    _, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, tm, kp, scratch, st_f, st_fp, p + 1, ct, cf,
-                                       cfp)
-                    counts[0] += ne
-                    counts[4] += ne
-                    st_t[p + 1] = tm
-                    sp = p + 2
+                if jj > piece:
+                    counts[0] += ne1
+                    piece = jj - 1
                     continue
-                if not settle and (fcur >= 1.0) != (fe >= 1.0):
-                    # one crossing (monotone piece) or an odd number within tol
-                    t, gx, gy, gz, ne, have = refine_root(seg, hprim, sarr, ns, ray, tcur, te, fcur - 1.0,
-                                                          fe - 1.0, d0, d1, tol, bisect, kp, scratch)
-                    counts[1] += ne
-                    if keep_roots:
-                        if nroot >= cap:
-                            return -1
-                        roots[nroot] = t
-                    nroot += 1
-                    if not cut:
-                        if not have:
-                            _, gx, gy, gz, _ = field_grad_along(seg, hprim, sarr, ns, ray, t, kp, scratch)
-                            counts[2] += ns
-                        shade_crossing(shade, dx, dy, dz, gx, gy, gz, rgb)
-                        wgt = (1.0 - acc_a) * alpha
-                        acc_r += wgt * rgb[0]
-                        acc_g += wgt * rgb[1]
-                        acc_b += wgt * rgb[2]
-                        acc_a += wgt
-                        if opaque or (maxa < 1.0 and acc_a >= maxa):
-                            cut = True
-                            counts[3] += 1
-                            if not keep_roots:
-                                out4[0] = acc_r
-                                out4[1] = acc_g
-                                out4[2] = acc_b
-                                out4[3] = acc_a
-                                return nroot
-                # piece done: its right end becomes the current point
-                for s in range(ns):
-                    st_f[cur, s] = st_f[p, s]
-                    st_fp[cur, s] = st_fp[p, s]
-                fcur = fe
-                tcur = te
-                sp = p
-        a = b
-    out4[0] = acc_r
-    out4[1] = acc_g
-    out4[2] = acc_b
-    out4[3] = acc_a
-    return nroot
+            _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, st_f, st_fp, 0, *cache)
+        else:
+            settled, ne = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, cur, 0, mstat, cache)
+            counts[0] += ne
+            if settled:
+                continue   # no crossing on the piece
+            # an ambiguous piece is walked from the exact values at its ends
+            fcur, ne1 = complete_row(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, rows, cur, cache)
+            _, ne2 = complete_row(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, rows, 0, cache)
+        counts[0] += ne1 + ne2
+        acc = _render_piece(walk, ns, st_t, (ta, tb, fcur), opt, shade, out, acc)
+    return acc
+
+
+@inline_kernel
+def _render_piece(walk, ns, st_t, piece, opt, shade, out, acc):
+    """Find the crossings of the piece ``piece = (ta, tb, F(ta))``, whose end
+    values are in the current row and slot 0 (arguments as
+    :func:`_render_cluster`).
+
+    Pieces wait on the stack ``st_t`` (right ends; a split leaves the right
+    part in its slot). A piece whose interval excludes 1 is settled; a
+    piece on which every primitive is monotone the same way holds at most
+    one crossing; any other is split at its middle until it is narrower
+    than the tolerance. A class change over a settled or narrow piece is a
+    crossing, refined and composited (:func:`_add_crossing`).
+    """
+    seg, hprim, hrec, sarr, ray, kp, scratch, rows, cache, mstat = walk
+    st_f, st_fh, st_fp = rows
+    tol, strict, bisect, cut_support, lazy, keep_roots = opt
+    counts = out[3]
+    tcur, tb, fcur = piece
+    cur = st_f.shape[0] - 1
+    st_t[0] = tb
+    sp = 1
+    while sp > 0 and not acc[6]:
+        p = sp - 1
+        te = st_t[p]
+        fe, d0, d1 = piece_ends(st_f, st_fp, cur, p, ns)
+        lo, hi, mono = piece_bounds(hrec, sarr, ns, st_f, st_fp, cur, p, tcur, te, strict)
+        pad = PAD * (1.0 + abs(hi))
+        width = te - tcur
+        tm = tcur + 0.5 * width
+        settle = lo > 1.0 + pad or hi < 1.0 - pad
+        if not settle and mono == 0 and width > tol and p + 2 <= MAX_STACK and tm > tcur and tm < te:
+            # ambiguous: split at the middle; the right part keeps slot p
+            _, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, tm, kp, scratch, st_f, st_fp, p + 1, *cache)
+            counts[0] += ne
+            counts[4] += ne
+            st_t[p + 1] = tm
+            sp = p + 2
+            continue
+        if not settle and (fcur >= 1.0) != (fe >= 1.0):
+            # one crossing (monotone piece) or an odd number within tol
+            acc = _add_crossing(walk, ns, (tcur, te, fcur - 1.0, fe - 1.0, d0, d1), opt, shade, out, acc)
+        # piece done: its right end becomes the current point
+        for s in range(ns):
+            st_f[cur, s] = st_f[p, s]
+            st_fp[cur, s] = st_fp[p, s]
+        fcur = fe
+        tcur = te
+        sp = p
+    return acc
+
+
+@inline_kernel
+def _add_crossing(walk, ns, bracket, opt, shade, out, acc):
+    """Refine the crossing bracketed by ``bracket = (a, b, F(a) - 1, F(b) -
+    1, F'(a), F'(b))`` (:func:`refine_root`), record it (with
+    ``keep_roots``) and, until the opacity cut-off, shade it and composite
+    it behind ``acc`` (arguments as :func:`_render_cluster`). Returns the
+    updated composite; finished when the roots buffer is full (crossings
+    -1) or the cut-off stops the ray."""
+    seg, hprim, hrec, sarr, ray, kp, scratch, rows, cache, mstat = walk
+    tol, strict, bisect, cut_support, lazy, keep_roots = opt
+    rgb, roots, out4, counts = out
+    acc_r, acc_g, acc_b, acc_a, cut, nroot, done = acc
+    ta, tb, ga, gb, da, db = bracket
+    t, gx, gy, gz, ne, have = refine_root(seg, hprim, sarr, ns, ray, ta, tb, ga, gb, da, db, tol, bisect, kp, scratch)
+    counts[1] += ne
+    if keep_roots:
+        if nroot >= roots.shape[0]:
+            return acc_r, acc_g, acc_b, acc_a, cut, -1, True
+        roots[nroot] = t
+    nroot += 1
+    if not cut:
+        if not have:
+            _, gx, gy, gz, _ = field_grad_along(seg, hprim, sarr, ns, ray, t, kp, scratch)
+            counts[2] += ns
+        shade_crossing(shade, ray[3], ray[4], ray[5], gx, gy, gz, rgb)
+        alpha = 1.0 if shade[SH_OPAQUE] != 0.0 else shade[SH_ALPHA]
+        wgt = (1.0 - acc_a) * alpha
+        acc_r += wgt * rgb[0]
+        acc_g += wgt * rgb[1]
+        acc_b += wgt * rgb[2]
+        acc_a += wgt
+        if shade[SH_OPAQUE] != 0.0 or (shade[SH_MAXA] < 1.0 and acc_a >= shade[SH_MAXA]):
+            cut = True
+            counts[3] += 1
+            done = not keep_roots
+    return acc_r, acc_g, acc_b, acc_a, cut, nroot, done
 
 
 @parallel_kernel
