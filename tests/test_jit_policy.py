@@ -58,3 +58,71 @@ def test_no_fastmath(name):
 @pytest.mark.parametrize("name", sorted(DISPATCHERS))
 def test_numpy_error_model(name):
     assert DISPATCHERS[name].get("error_model") == "numpy", DISPATCHERS[name]
+
+
+# --- kernels compiled without reference counting (slicer._jit.unrefcounted_kernel)
+
+UNREFCOUNTED = sorted(name for name, opts in DISPATCHERS.items() if opts.get("_nrt") is False)
+#: allocating calls an unrefcounted kernel must not make (Numba refuses most
+#: of them without its runtime; this names the rule in the source)
+ALLOCATING = {"empty", "zeros", "ones", "full", "array", "arange", "copy", "empty_like", "zeros_like",
+              "concatenate", "append"}
+
+
+def _dispatcher(name: str):
+    mod, _, attr = name.rpartition(".")
+    return getattr(importlib.import_module(mod), attr)
+
+
+def _returned_arrays(src: str) -> list[str]:
+    """Return expressions of a kernel's source that may hand back an array (a
+    reference an unrefcounted kernel must never return: nothing would own
+    it): a name the function indexes or asks the shape of, or a slice."""
+    import ast
+    import textwrap
+    tree = ast.parse(textwrap.dedent(src))
+    arrays = {node.value.id for node in ast.walk(tree)
+              if isinstance(node, (ast.Subscript, ast.Attribute)) and isinstance(node.value, ast.Name)
+              and (isinstance(node, ast.Subscript) or node.attr in ("shape", "size", "ndim"))}
+    bad = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Return) or node.value is None:
+            continue
+        parts = node.value.elts if isinstance(node.value, ast.Tuple) else [node.value]
+        for part in parts:
+            if isinstance(part, ast.IfExp):
+                parts.extend([part.body, part.orelse])
+            elif isinstance(part, ast.Name) and part.id in arrays:
+                bad.append(ast.unparse(part))
+            elif isinstance(part, ast.Subscript) and any(isinstance(n, ast.Slice) for n in ast.walk(part.slice)):
+                bad.append(ast.unparse(part))
+    return bad
+
+
+def test_the_ray_walks_and_the_field_are_unrefcounted():
+    for name in ("slicer._kernels.trace.trace_ray_interval", "slicer._kernels.render.render_ray",
+                 "slicer._kernels.field.segment_eval", "slicer._kernels.rays.eval_along",
+                 "slicer._kernels.quadtree._classified"):
+        assert name in UNREFCOUNTED, name
+
+
+@pytest.mark.parametrize("name", UNREFCOUNTED)
+def test_unrefcounted_kernels_allocate_and_return_no_array(name):
+    import ast
+    import inspect
+    import textwrap
+    src = inspect.getsource(_dispatcher(name).py_func)
+    calls = {node.func.attr for node in ast.walk(ast.parse(textwrap.dedent(src)))
+             if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)}
+    assert not calls & ALLOCATING, (name, calls & ALLOCATING)
+    assert _returned_arrays(src) == [], name
+
+
+def test_returned_array_check_sees_views_and_arrays():
+    """Guard the check above: an indexed name, a slice, either inside a
+    tuple or a conditional, are reported; scalars read from arrays are not."""
+    assert _returned_arrays("def f(a, n):\n    x = a[0]\n    return x, a[1:]\n") == ["a[1:]"]
+    assert _returned_arrays("def f(a, n):\n    return n, (a if n else a)\n") == []
+    assert _returned_arrays("def f(a, n):\n    a[0] = 1\n    return n, (a if n else a)\n") == ["a", "a"]
+    assert _returned_arrays("def f(rows):\n    F = rows[0]\n    return F.shape[0], F[0, 1]\n") == []
+    assert _returned_arrays("def f(rows):\n    F = rows[0]\n    return F.shape[0], rows\n") == ["rows"]

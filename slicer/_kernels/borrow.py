@@ -19,6 +19,11 @@ every caller follows:
   last use through any view;
 * never return a borrowed view, store it in a container, or let it escape the
   kernel that borrowed it.
+
+A kernel compiled with :data:`slicer._jit.unrefcounted_kernel` counts no
+references at all, whatever arrays it is given; borrowing serves the kernels
+that keep Numba's runtime because they allocate (the bucket launchers) and the
+calls they make.
 """
 from __future__ import annotations
 

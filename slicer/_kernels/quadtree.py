@@ -244,13 +244,18 @@ def _classified(plane, cx, cy, rr, kind, G, H, U, crests, settings, scratch):
 def _level_cells(plane, level, parents, settings, out, j0, j1):
     """Cells ``j0:j1`` of :func:`quadtree_level` into ``out = (state, kappa,
     sx, sy, taylor, evaluations)``, ``level = (ix, iy, x0, y0, s, rr, kind,
-    crests)``."""
-    ix, iy, x0, y0, s, rr, kind, crests = level
-    state, kappa, sx, sy, tay, evals = borrow(out)      # slicer._kernels.borrow: no reference counting
-    plane = (borrow(plane[0]), plane[1])
-    parents = borrow(parents)
+    crests)``, with one work array."""
     own = np.empty(SCRATCH)
-    scratch = borrow(own)
+    _cells_into(plane, level, parents, settings, out, j0, j1, own)
+    keep_alive((own,))
+
+
+@unrefcounted_kernel
+def _cells_into(plane, level, parents, settings, out, j0, j1, scratch):
+    """The loop of :func:`_level_cells` (no reference counting: the per-cell
+    steps unpack the plane's arrays at every cell)."""
+    ix, iy, x0, y0, s, rr, kind, crests = level
+    state, kappa, sx, sy, tay, evals = out
     for j in range(j0, j1):
         cx = x0 + (ix[j] + 0.5) * s
         cy = y0 + (iy[j] + 0.5) * s
@@ -259,7 +264,6 @@ def _level_cells(plane, level, parents, settings, out, j0, j1):
         state[j], kappa[j], sx[j], sy[j], evals[j] = st, kp, ax, ay, ev
         tay[0, j], tay[1, j], tay[2, j], tay[3, j] = cx, cy, f, gx
         tay[4, j], tay[5, j], tay[6, j], tay[7, j] = gy, G, H, U
-    keep_alive((own,))
 
 
 @parallel_kernel
