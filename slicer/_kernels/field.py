@@ -156,7 +156,7 @@ def _clip_linear(h, c0, lo, hi):
     return lo, hi, False, False
 
 
-@unrefcounted_kernel
+@inline_kernel
 def _support_local(seg, i, px, py, pz, inv_s2):
     """Support interval of segment ``i`` at p, in arc lengths measured from a
     local origin ``to``: the foot of p on the axis, clamped to [0, L]
@@ -475,7 +475,7 @@ def _grad_sums_m3(a, y, d):
     return h0, h1
 
 
-@unrefcounted_kernel
+@inline_kernel
 def _series_m3(Y, d, l, r0, r1, r2, m, grad):
     """:func:`_series` for the default kernel n = 6 (m = 3): the same
     operations in the same order on scalars (bit-identical results), without
