@@ -245,9 +245,7 @@ def _level_cells(plane, level, parents, settings, out, j0, j1):
     """Cells ``j0:j1`` of :func:`quadtree_level` into ``out = (state, kappa,
     sx, sy, taylor, evaluations)``, ``level = (ix, iy, x0, y0, s, rr, kind,
     crests)``, with one work array."""
-    own = np.empty(SCRATCH)
-    _cells_into(plane, level, parents, settings, out, j0, j1, own)
-    keep_alive((own,))
+    _cells_into(plane, level, parents, settings, out, j0, j1, np.empty(SCRATCH))
 
 
 @unrefcounted_kernel
