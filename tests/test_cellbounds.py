@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from sample_lattices import load_sample
 from slicer import Skeleton
 from slicer._kernels.binning import bin_boxes
-from slicer._kernels.cellbounds import disc_bounds, disc_bounds_binned
+from slicer._kernels.cellbounds import MIN_PIECES, PIECES, disc_bounds, disc_bounds_binned, piece_count
 from slicer._kernels.points import field_at_points
 from slicer._kernels.ridgebounds import ridge_bounds, ridge_bounds_binned
 from slicer.contours.cells import THIN, _bin_segments, _root_grid, plane_segments
@@ -144,6 +144,44 @@ def test_bounds_are_close_on_a_strut_surface():
     G, H, gn, hn = _check(s, np.array([0.0, 1.0, 0.0]), 0.01, 0)
     assert abs(hn - 1.556) < 0.1               # it grows by ~7/mm across the disc
     assert H <= 2.0 * 1.556
+
+
+@given(st.floats(0.0, 5.0), st.floats(1e-6, 2.0), st.sampled_from([1, 2, 4, 8, 32]))
+@settings(max_examples=300, deadline=None)
+def test_piece_count_refines_the_cheap_pieces(length, r, pieces):
+    """About one piece per disc radius of reach, a multiple of the cheap bounds'
+    piece count (so the full pieces refine theirs), never more than asked."""
+    k = piece_count(0.25, 0.25 + length, r, pieces)
+    if pieces <= MIN_PIECES:
+        assert k == pieces
+        return
+    assert MIN_PIECES <= k <= pieces and k % MIN_PIECES == 0
+    assert k * r >= length * (1 - 1e-12) or k == pieces      # pieces no longer than r unless capped
+    assert k == MIN_PIECES or (k - MIN_PIECES) * r < length    # and not needlessly many
+
+
+def test_full_bounds_are_never_looser_than_the_cheap_ones():
+    """Over discs of every size on a graded lattice plane, the bounds from the
+    adaptive piece count are at most the 4-piece ones (up to their rounding slack)
+    and the sampled field stays below them (:func:`_check` covers the latter for
+    single discs)."""
+    skel = load_sample("bcc_3x3x3_graded")
+    table = point_grid(skel)[0]
+    lo, hi = skel.support_bounds()
+    z = 0.5 * (lo[2] + hi[2]) + 0.013
+    ids = plane_segments(skel, z)
+    rng = np.random.default_rng(3)
+    k = 4000
+    cx = lo[0] + rng.random(k) * (hi[0] - lo[0])
+    cy = lo[1] + rng.random(k) * (hi[1] - lo[1])
+    r = 10.0 ** rng.uniform(-4, 0, k)
+    args = (table, ids, cx, cy, z, r, skel.degree, skel.sigma, skel.normalisation)
+    full = disc_bounds(*args, PIECES)
+    cheap = disc_bounds(*args, MIN_PIECES)
+    for f, c in zip(full, cheap):
+        assert np.all(f <= c * (1 + 1e-8) + 1e-12)
+    # and on large discs the extra pieces do tighten them
+    assert np.any((full[0] < cheap[0] * (1 - 1e-6)) & (r > 0.05))
 
 
 def test_ridge_bounds_see_the_crest_of_a_strut_lying_in_the_plane():

@@ -80,8 +80,28 @@ def kernel_curvature_max(n, sigma, norm):
 
 
 #: pieces of the reach interval bounded separately (tighter than one piece:
-#: the kernel's slope and curvature fall off away from the foot of c)
+#: the kernel's slope and curvature fall off away from the foot of c), at most
 PIECES = 32
+#: fewest pieces of a reach interval (:func:`piece_count`)
+MIN_PIECES = 4
+
+
+@inline_kernel
+def piece_count(ta, tb, r, pieces):
+    """Pieces of the reach interval ``[ta, tb]`` for a disc of radius ``r``:
+    about one per ``r`` of arc length, rounded up to a multiple of
+    ``MIN_PIECES``, and at most ``pieces`` (``pieces`` itself when it is
+    ``MIN_PIECES`` or fewer).
+
+    A piece's bounds hold for every point of the disc, so its distances
+    carry ``± r`` however short it is: pieces much shorter than ``r`` tighten
+    little and cost as much (docs/math.md §10). Any count gives valid bounds;
+    a multiple of ``MIN_PIECES`` refines the cheap bounds' pieces, so the full
+    bounds stay at least as tight as the cheap ones.
+    """
+    if pieces <= MIN_PIECES or not tb - ta < pieces * r:
+        return pieces
+    return max(MIN_PIECES, MIN_PIECES * int(math.ceil((tb - ta) / (MIN_PIECES * r))))
 
 
 @inline_kernel
@@ -287,7 +307,8 @@ def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces):
         ta, tb = _reach_interval(seg, i, cx, cy, z, r, sigma)
         if not tb > ta:
             continue
-        gi, hi, ui, bhi, bli, ai, api = _piece_bounds(seg, i, cx, cy, z, r, ta, tb, n, sigma, norm, k1, k2, pieces)
+        k = piece_count(ta, tb, r, pieces)
+        gi, hi, ui, bhi, bli, ai, api = _piece_bounds(seg, i, cx, cy, z, r, ta, tb, n, sigma, norm, k1, k2, k)
         g += gi
         h += hi
         u += ui
