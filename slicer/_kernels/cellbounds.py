@@ -101,7 +101,7 @@ def piece_count(ta, tb, r, pieces):
     """
     if pieces <= MIN_PIECES or not tb - ta < pieces * r:
         return pieces
-    return max(MIN_PIECES, MIN_PIECES * int(math.ceil((tb - ta) / (MIN_PIECES * r))))
+    return min(pieces, max(MIN_PIECES, MIN_PIECES * int(math.ceil((tb - ta) / (MIN_PIECES * r)))))
 
 
 @inline_kernel
