@@ -16,6 +16,9 @@ from .field import segment_table, support_boxes
 from .grid import SliceGrid
 from .skeleton import Skeleton
 
+#: default bucket edge of the slicer, pixels (every API default and the CLI's ``--bucket``)
+DEFAULT_BUCKET = 64
+
 
 @dataclass(frozen=True)
 class Buckets:
@@ -125,4 +128,4 @@ def thread_order(todo: np.ndarray, cost: np.ndarray, nthreads: int) -> np.ndarra
     return order[np.argsort(block, kind="stable")]
 
 
-__all__ = ["Buckets", "build_buckets", "thread_order"]
+__all__ = ["Buckets", "DEFAULT_BUCKET", "build_buckets", "thread_order"]

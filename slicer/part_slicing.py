@@ -38,6 +38,7 @@ from .parts import Part, as_part
 from .slicing import SliceResult, coverage_layers, slice_skeleton, trace, trim
 from .tileplan import TilePlan, plan_slice
 from .tiles import slice_planned
+from .buckets import DEFAULT_BUCKET
 
 #: the mesh roles, in the order of the combination's states (lattice first)
 _ROLES = ("clip-inside", "clip-outside", "solid")
@@ -232,7 +233,7 @@ def _slice_meshes(part: Part, lattice: SliceResult, spans: bool) -> PartResult:
 
 
 def slice_part(part, pixel_size: float, pixel_size_y: float | None = None, layer_height: float | None = None,
-               bounds=None, method: str = "interval", bucket: int = 64, threads: int | None = None,
+               bounds=None, method: str = "interval", bucket: int = DEFAULT_BUCKET, threads: int | None = None,
                strict: bool = False, spans: bool = False, span_tol: float | None = None,
                blend: str = "sum") -> SliceResult:
     """:func:`slicer.slicing.slice_skeleton` for a part (a lattice and meshes), in memory.
@@ -275,7 +276,7 @@ def slice_part(part, pixel_size: float, pixel_size_y: float | None = None, layer
 
 # ----------------------------------------------------------------------------- planned
 def plan_part(part: Part, pixel_size: float, pixel_size_y=None, layer_height=None, bounds=None,
-              method: str = "interval", bucket: int = 64, threads=None, strict: bool = False, spans: bool = False,
+              method: str = "interval", bucket: int = DEFAULT_BUCKET, threads=None, strict: bool = False, spans: bool = False,
               span_tol=None, **plan_kw) -> TilePlan:
     """The tile plan of a part's lattice on the part's grid (:func:`part_grid`; never
     trimmed by the tiles: the combined result is). Keywords as :func:`slicer.tileplan.plan_slice`."""
@@ -411,7 +412,7 @@ class PartStreamedResult:
 
 
 def slice_part_planned(part, pixel_size: float, pixel_size_y=None, layer_height=None, bounds=None,
-                       method: str = "interval", bucket: int = 64, threads=None, strict: bool = False,
+                       method: str = "interval", bucket: int = DEFAULT_BUCKET, threads=None, strict: bool = False,
                        spans: bool = False, span_tol=None, *, max_memory=None, executor=None, executor_info=None,
                        workers: int | None = None, scheduler: str | None = None, tile: int | None = None,
                        slab: int | None = None, progress=None, plan: TilePlan | None = None, blend: str = "sum"):

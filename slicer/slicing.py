@@ -18,7 +18,7 @@ from ._kernels.raysupport import kprime_max
 from ._kernels.trace import RUNS_FULL, trace_buckets
 from ._kernels.union_trace import trace_union_buckets
 from .blend import require_traceable
-from .buckets import Buckets, build_buckets, thread_order
+from .buckets import DEFAULT_BUCKET, Buckets, build_buckets, thread_order
 from .errors import GridError
 from .grid import SliceGrid, make_grid
 from .ordering import layer_events, rect_parts, stable_argsort
@@ -176,7 +176,7 @@ def coverage_layers(span_pix: np.ndarray, u0: np.ndarray, u1: np.ndarray, layers
         yield cov.reshape(height, width)
 
 
-def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int = 64,
+def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int = DEFAULT_BUCKET,
           threads: int | None = None, strict: bool = False, cut_support: bool = True,
           batch: int = 256, spans: bool = False, span_tol: float | None = None,
           blend: str = "sum", lazy: bool = False) -> SliceResult:
@@ -401,7 +401,7 @@ def trim(result: SliceResult, margin: int = 1) -> SliceResult:
 
 def slice_skeleton(skel: Skeleton, pixel_size: float, pixel_size_y: float | None = None,
                    layer_height: float | None = None, bounds=None, method: str = "interval",
-                   bucket: int = 64, threads: int | None = None, strict: bool = False,
+                   bucket: int = DEFAULT_BUCKET, threads: int | None = None, strict: bool = False,
                    spans: bool = False, span_tol: float | None = None, blend: str = "sum") -> SliceResult:
     """Slice a skeleton into voxel layers, every voxel centre classified exactly.
 

@@ -27,6 +27,7 @@ from .grid import SliceGrid, make_grid
 from .skeleton import Skeleton
 from .slicing import trace
 from .tiletask import TraceOptions, cull, trace_tile
+from .buckets import DEFAULT_BUCKET
 
 # ---------------------------------------------------------------- memory model (bytes)
 #: held per inside run of a slab while its layers are produced: the merged
@@ -433,7 +434,7 @@ def warm_up(opts: TraceOptions) -> None:
 
 def plan_slice(skel: Skeleton, pixel_size: float, pixel_size_y: float | None = None,
                layer_height: float | None = None, bounds=None, method: str = "interval",
-               bucket: int = 64, threads: int | None = None, strict: bool = False,
+               bucket: int = DEFAULT_BUCKET, threads: int | None = None, strict: bool = False,
                spans: bool = False, span_tol: float | None = None, *, max_memory=None,
                executor_info=None, tile: int | None = None, sample: bool | None = None,
                layer_bytes_per_pixel: float | None = None,

@@ -47,6 +47,7 @@ from .slicing import SliceResult, trace, trim
 from .tileplan import (TilePlan, auto_budget, current_rss, format_size, parse_size, plan_job, plan_slice,
                        sample_runs)
 from .tiletask import TraceOptions, cull, merge_tiles, trace_tile
+from .buckets import DEFAULT_BUCKET
 
 
 class _Runner:
@@ -235,7 +236,7 @@ class StreamedResult:
 
 def slice_planned(skel: Skeleton, pixel_size: float, pixel_size_y: float | None = None,
                   layer_height: float | None = None, bounds=None, method: str = "interval",
-                  bucket: int = 64, threads: int | None = None, strict: bool = False,
+                  bucket: int = DEFAULT_BUCKET, threads: int | None = None, strict: bool = False,
                   spans: bool = False, span_tol: float | None = None, *, max_memory=None,
                   executor=None, executor_info=None, workers: int | None = None,
                   scheduler: str | None = None, tile: int | None = None,

@@ -17,6 +17,7 @@ from .grid import SliceGrid
 from .ordering import rect_parts
 from .skeleton import Skeleton
 from .slicing import SliceResult, trace
+from .buckets import DEFAULT_BUCKET
 
 @dataclass(frozen=True)
 class TraceOptions:
@@ -26,7 +27,7 @@ class TraceOptions:
     """
 
     method: str = "interval"
-    bucket: int = 64
+    bucket: int = DEFAULT_BUCKET
     threads: int | None = None
     strict: bool = False
     spans: bool = False

@@ -411,3 +411,16 @@ def test_part_contours_hold_the_independent_classification_on_any_thread_count()
         assert np.array_equal(got, want[k, clear]), k
         checked += int(clear.sum())
     assert checked > 0.5 * want.size and want.sum() > 200
+
+
+def test_contours_of_a_streamed_part_on_a_plate_ask_for_more_memory():
+    """A part sliced in slabs (not held in memory) cannot have its contours put on a
+    printer's plate: a clear error naming the option, not a crash."""
+    from slicer.contours import iter_part_contours
+    from slicer.errors import GridError
+
+    part = Part(LATTICE, [PartMesh(tmesh(rotated(SPHERE, 2)), "clip-inside")])
+    got = slice_part_planned(part, 0.1, slab=5)
+    assert isinstance(got, PartStreamedResult)
+    with pytest.raises(GridError, match="max-memory"):
+        next(iter_part_contours(got, 1e-3, placement=object()))

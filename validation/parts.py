@@ -41,6 +41,7 @@ from .independent import project
 from .metrics import _edge_points, hausdorff, polygon_rings, rasterize_rings
 from .reference_mesh import reference_band
 from .validate import assemble_report, pick_layers
+from slicer.buckets import DEFAULT_BUCKET
 
 #: slack for floating-point noise in distance checks, mm
 SLACK = 1e-9
@@ -122,7 +123,7 @@ def _surface_distance(part, xy: np.ndarray, z: float, sections: list) -> np.ndar
 
 
 def validate_part(part, *, pixel_size: float | None = None, pixels: int = 512, pixel_size_y=None,
-                  layer_height=None, bounds=None, method: str = "interval", bucket: int = 64, threads=None,
+                  layer_height=None, bounds=None, method: str = "interval", bucket: int = DEFAULT_BUCKET, threads=None,
                   strict: bool = False, mesh_edge: float | None = None, layers_checked: int = 8,
                   tol: float = 1e-3, max_hausdorff: float | None = None, min_iou: float | None = None,
                   blend: str = "sum", progress=None) -> dict:

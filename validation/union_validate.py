@@ -39,6 +39,7 @@ from .independent import plane_distance
 from .metrics import contour_error_bound, hausdorff, polygon_rings, rasterize_rings
 from .reference_mesh import Section, reference_band
 from .validate import assemble_report, default_pitch, pick_layers
+from slicer.buckets import DEFAULT_BUCKET
 
 
 def strut(skel: Skeleton, i: int) -> Skeleton:
@@ -160,7 +161,7 @@ def compare_union_layer(skel: Skeleton, res, k: int, ids: list[int], sec: Sectio
 
 
 def validate_union(skel: Skeleton, *, pixel_size=None, pixels: int = 512, pixel_size_y=None, layer_height=None,
-                   bounds=None, method: str = "interval", bucket: int = 64, threads=None, strict: bool = False,
+                   bounds=None, method: str = "interval", bucket: int = DEFAULT_BUCKET, threads=None, strict: bool = False,
                    mesh_edge=None, layers_checked: int = 8, tol: float = 1e-3, max_hausdorff=None, min_iou=None,
                    progress=None) -> dict:
     """:func:`validation.validate.validate` for ``blend="union"`` (module docstring); same report layout."""

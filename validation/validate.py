@@ -36,6 +36,7 @@ from slicer.slicing import slice_skeleton
 from .bench import square_bounds
 from .metrics import compare_layer, contour_error_bound, polygon_rings, rasterize_rings, summarise
 from .reference_mesh import reference_sections
+from slicer.buckets import DEFAULT_BUCKET
 
 #: slack for floating-point noise in distance checks, mm
 SLACK = 1e-9
@@ -69,7 +70,7 @@ def default_pitch(skel, pixel_size, pixels: int, bounds):
 
 
 def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_size_y=None,
-             layer_height=None, bounds=None, method: str = "interval", bucket: int = 64,
+             layer_height=None, bounds=None, method: str = "interval", bucket: int = DEFAULT_BUCKET,
              threads=None, strict: bool = False, mesh_edge: float | None = None,
              layers_checked: int = 8, tol: float = 1e-3, max_hausdorff: float | None = None,
              min_iou: float | None = None, blend: str = "sum", progress=None) -> dict:

@@ -16,6 +16,7 @@ from ..errors import OptionError
 from ..jobspec import OPTIONS, SliceJob
 from ..parts import Part, load_part
 from ..slicing import METHODS
+from ..buckets import DEFAULT_BUCKET
 
 
 def _stack(*decorators):
@@ -41,7 +42,7 @@ grid_options = _stack(
 trace_options = _stack(
     click.option("--method", type=click.Choice(sorted(METHODS, key=METHODS.get)), default="interval",
                  show_default=True, help="Tracing method (sampling and segment are the paper's baselines)."),
-    click.option("--bucket", type=click.IntRange(min=0), default=64, show_default=True,
+    click.option("--bucket", type=click.IntRange(min=0), default=DEFAULT_BUCKET, show_default=True,
                  help="Bucket edge in pixels (0: one global primitive list)."),
     click.option("--threads", type=click.IntRange(min=1), default=None, help="Threads (default: all cores)."),
     click.option("--strict", is_flag=True,

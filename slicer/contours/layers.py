@@ -38,6 +38,7 @@ import shapely.affinity
 
 from .._kernels.launch import numba_threads, serial
 from ..atomic import AtomicFile, check_destination
+from ..errors import GridError
 from ..inorder import map_in_order
 from ..mesh_slicing import Sections
 from ..part_slicing import PartResult, PartStreamedResult
