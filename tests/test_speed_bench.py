@@ -64,3 +64,30 @@ def test_kernel_profile_names_numba_symbols_and_sums_their_shares():
     assert shares["field.segment_eval"] == pytest.approx(0.4) and shares["NRT_decref"] == pytest.approx(0.2)
     assert jit == pytest.approx(0.10)
     assert kp.kernel_shares("nothing here") == ({}, 0.0)
+
+
+def test_bucket_size_benchmark_compares_edges_on_the_same_layers(tmp_path):
+    """``benchmarks/bucket_size.py --quick`` traces every job at every edge, checks the
+    layers do not depend on it (the evaluations neither) and writes its JSON."""
+    out = tmp_path / "bucket.json"
+    p = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bucket_size.py"), "--quick", "--repeat", "2",
+                        "--threads", "1", "--buckets", "64", "16", "--json", str(out)],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(out.read_text())
+    assert doc["benchmark"] == "bucket_size" and doc["quick"] is True and doc["repeat"] == 2
+    assert str(tmp_path) not in json.dumps(doc)
+    rows = doc["rows"]
+    assert [(r["job"], r["bucket"]) for r in rows] == [(j, b) for j in ("jelly", "micro", "octet") for b in (64, 16)]
+    for j in ("jelly", "micro", "octet"):
+        ev = {r["evaluations"] for r in rows if r["job"] == j}
+        assert len(ev) == 1 and ev.pop() > 0, j
+    for r in rows:
+        assert len(r["runs_seconds"]) == 2 and min(r["runs_seconds"]) <= r["median_seconds"] <= max(r["runs_seconds"])
+    assert p.stdout.count("\n| ") >= 7
+
+
+def test_bucket_size_benchmark_refuses_a_bad_edge(tmp_path):
+    p = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bucket_size.py"), "--quick", "--buckets", "0"],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert p.returncode == 2 and "must be >= 1" in p.stderr
