@@ -32,11 +32,13 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
 
 from sample_lattices import load_sample  # noqa: E402
 from slicer.grid import make_grid  # noqa: E402
 from slicer.lattice import generate_lattice  # noqa: E402
 from slicer.slicing import trace  # noqa: E402
+from speed import _square_bounds  # noqa: E402
 from validation import machine  # noqa: E402
 
 #: job -> (full size, quick size): (pixels, layers)
@@ -44,14 +46,10 @@ SIZES = {"jelly": ((512, 1024), (48, 48)), "micro": ((512, 1024), (48, 48)), "oc
 
 
 def _sample_grid(name: str, pixels: int, layers: int):
-    """A sample over a square box around its support (as ``speed.py``'s trace jobs)."""
+    """A sample over a square box around its support (``speed.py``'s trace jobs)."""
     skel = load_sample(name)
-    lo, hi = skel.support_bounds()
-    cx, cy = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])
-    half = 0.5 * float(max(hi[0] - lo[0], hi[1] - lo[1]))
-    bounds = (cx - half, cy - half, float(lo[2]), cx + half, cy + half, float(hi[2]))
-    grid = make_grid(skel.support_bounds(), 2 * half / pixels, layer_height=(bounds[5] - bounds[2]) / layers,
-                     bounds=bounds)
+    bounds, px = _square_bounds(skel, pixels)
+    grid = make_grid(skel.support_bounds(), px, layer_height=(bounds[5] - bounds[2]) / layers, bounds=bounds)
     return skel, grid
 
 
