@@ -106,7 +106,7 @@ def table(rows) -> str:
     first = {}
     for r in rows:
         base = first.setdefault(r["job"], r["median_seconds"])
-        size = " × ".join(map(str, r["size"]))
+        size = " x ".join(map(str, r["size"]))
         out.append(f"| {r['job']} | {size} | {r['bucket']} | {r['median_seconds']:.3f} | "
                    f"{r['median_seconds'] / base:.2f} | {r['evaluations']:,} |")
     return "\n".join(out)

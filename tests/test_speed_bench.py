@@ -72,7 +72,7 @@ def test_bucket_size_benchmark_compares_edges_on_the_same_layers(tmp_path):
     out = tmp_path / "bucket.json"
     p = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bucket_size.py"), "--quick", "--repeat", "2",
                         "--threads", "1", "--buckets", "64", "16", "--json", str(out)],
-                       capture_output=True, text=True, cwd=tmp_path)
+                       capture_output=True, text=True, encoding="utf-8", cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     doc = json.loads(out.read_text())
     assert doc["benchmark"] == "bucket_size" and doc["quick"] is True and doc["repeat"] == 2
@@ -89,5 +89,5 @@ def test_bucket_size_benchmark_compares_edges_on_the_same_layers(tmp_path):
 
 def test_bucket_size_benchmark_refuses_a_bad_edge(tmp_path):
     p = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bucket_size.py"), "--quick", "--buckets", "0"],
-                       capture_output=True, text=True, cwd=tmp_path)
+                       capture_output=True, text=True, encoding="utf-8", cwd=tmp_path)
     assert p.returncode == 2 and "must be >= 1" in p.stderr
