@@ -320,7 +320,7 @@ def plan_job(skel: Skeleton, grid: SliceGrid, opts: TraceOptions, budget: int | 
         Even one layer per slab does not fit the budget.
     """
     W, H, K = grid.width, grid.height, grid.layers
-    B = opts.bucket if opts.bucket and opts.bucket > 0 else 64
+    B = opts.bucket if opts.bucket and opts.bucket > 0 else DEFAULT_BUCKET
     serial = workers <= 1
     window = 1 if serial else workers + 1
     if tile is None:
