@@ -289,3 +289,20 @@ def test_thread_order_balances_static_blocks(costs, T):
             bounds = np.minimum(np.arange(T + 1) * k, len(c))
         shares = [int(c[a:b].sum()) for a, b in zip(bounds[:-1], bounds[1:])]
         assert max(shares) <= c.sum() / T + 2 * c.max() + 1e-9
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-1.0, -1e-3), st.floats(1e-3, 1.0), st.floats(0.0, 20.0), st.floats(0.0, 20.0),
+       st.floats(1e-6, 0.05), st.floats(0.1, 10.0))
+def test_a_coarse_hermite_estimate_stays_near_the_cubic_root(ga, gb, da, db, step, w):
+    """A centre split stops Newton once a step moves less than ``step`` of
+    the bracket; the estimate must still be the cubic's root to about that
+    (the full iteration is the reference), inside the bracket."""
+    from slicer._kernels.rays import hermite_point
+
+    ta = 3.0
+    exact = hermite_point(ta, ta + w, ga, gb, da, db)
+    coarse = hermite_point(ta, ta + w, ga, gb, da, db, step)
+    assert ta <= coarse <= ta + w
+    assert abs(coarse - exact) <= 2.0 * step * w
+

@@ -462,18 +462,27 @@ def piece_ends(F, FP, ia, ib, ns):
     return fe, da, db
 
 
+#: :func:`hermite_point` iterates until a Newton step moves less than this
+#: fraction of the bracket: the cubic's root, to rounding
+CUBIC_ROOT = 1e-15
+
+
 @unrefcounted_kernel
-def hermite_point(ta, tb, ga, gb, da, db):
+def hermite_point(ta, tb, ga, gb, da, db, step=CUBIC_ROOT):
     """Root estimate in ``[ta, tb]`` of g from ``g`` and ``g'`` at both ends.
 
     The cubic Hermite interpolant is solved by Newton steps from the secant
     point, each kept inside the bracket (a step leaving it, or a flat
     derivative, falls back to the midpoint of the sub-bracket the cubic's
-    sign designates), until a step moves less than 1e-15 of the bracket:
-    the result is the cubic's root, a continuous function of the inputs, so
-    pieces that differ by rounding (another tiling) give the same estimate
-    to rounding. ``ga`` and ``gb`` should have opposite signs; the result
-    always lies in ``[ta, tb]``.
+    sign designates), until a step moves less than ``step`` times the
+    bracket. With the default, ``CUBIC_ROOT``, the result is the cubic's
+    root, a continuous function of the inputs, so pieces that differ by
+    rounding (another tiling) give the same estimate to rounding: crossings
+    (spans) and rendered roots need that. A caller that only rounds the
+    estimate to a voxel centre passes a coarser ``step`` (a fraction of the
+    layer height over the bracket) and saves the last Newton steps.
+    ``ga`` and ``gb`` should have opposite signs; the result always lies in
+    ``[ta, tb]``.
     """
     w = tb - ta
     if not w > 0.0:
@@ -504,7 +513,7 @@ def hermite_point(ta, tb, ga, gb, da, db):
         sn = s - p / dp if dp != 0.0 else -1.0
         if not (sn > lo and sn < hi):
             sn = 0.5 * (lo + hi)
-        if abs(sn - s) <= 1e-15:
+        if abs(sn - s) <= step:
             s = sn
             break
         s = sn

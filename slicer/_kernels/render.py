@@ -137,8 +137,9 @@ def refine_root(seg, hprim, sarr, ns, ray, a, b, ga, gb, da, db, tol, bisect, kp
     iso-value (``F >= 1`` is inside); ``da``, ``db`` are ``F'`` along the ray.
     Hermite mode takes the Hermite estimate, kept ``tol / 2`` away from the
     bracket ends so a well-predicted root is bracketed to ``tol`` by the next
-    step; two steps in a row that fail to halve the bracket force a
-    bisection. ``bisect`` uses pure bisection.
+    step (the estimate's Newton steps stop at ``tol / 8``; the final bracket's
+    estimate is the cubic's root); two steps in a row that fail to halve the
+    bracket force a bisection. ``bisect`` uses pure bisection.
 
     Returns
     -------
@@ -164,7 +165,7 @@ def refine_root(seg, hprim, sarr, ns, ray, a, b, ga, gb, da, db, tol, bisect, kp
             tm = a + 0.5 * w
             fails = 0
         else:
-            tm = hermite_point(a, b, ga, gb, da, db)
+            tm = hermite_point(a, b, ga, gb, da, db, 0.125 * tol / w)
             q = 0.5 * tol
             if tm < a + q:
                 tm = a + q

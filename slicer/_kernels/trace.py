@@ -46,6 +46,9 @@ MAX_STACK = 256
 # depth by DEEP_CENTRES + 2 log2(K) + 2 and DEEP_SPANS + log2(h / span_tol) + 1.
 DEEP_CENTRES = 96
 DEEP_SPANS = 150
+#: a centre split's Hermite estimate is refined until a Newton step moves
+#: less than this many layer heights (:func:`_centre_split`)
+CENTRE_STEP = 0.125
 
 
 @unrefcounted_kernel
@@ -392,13 +395,19 @@ def _centre_split(F, FP, ns, p, piece, z0, h):
     """The centre at which to split the piece ``piece = (tcur, e_t, F(tcur),
     mono, q0, q1)`` (right end in slot ``p``): where F is monotone and
     brackets 1 (one crossing), the centre nearest the Hermite estimate of
-    the crossing (up to DEEP_CENTRES deep); elsewhere the middle centre."""
+    the crossing (up to DEEP_CENTRES deep); elsewhere the middle centre.
+
+    The estimate is only rounded to a centre, so its Newton steps stop once
+    one moves less than ``CENTRE_STEP`` layer heights: only a root within
+    that of the midpoint between two centres can round to the other one.
+    Which centre is split on changes the evaluation count, never a voxel:
+    every centre is classified from its own value or a sound bound."""
     tcur, e_t, fcur, mono, q0, q1 = piece
     km = (q0 + q1) // 2
     if mono != 0 and q1 > q0 and p < DEEP_CENTRES:
         fe, dcur, de = piece_ends(F, FP, F.shape[0] - 1, p, ns)
         if (fcur - 1.0) * (fe - 1.0) < 0.0:
-            tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de)
+            tr = hermite_point(tcur, e_t, fcur - 1.0, fe - 1.0, dcur, de, CENTRE_STEP * h / (e_t - tcur))
             kr = int(math.floor((tr - z0) / h + 0.5))
             km = min(max(kr, q0), q1)
     return km
