@@ -255,3 +255,40 @@ def test_signed_areas_of_known_rings():
     tri = np.array([[0.0, 0.0], [0.0, 3.0], [4.0, 0.0]])          # clockwise
     assert signed_areas([square, tri, square + 10.0]).tolist() == [2.0, -6.0, 2.0]
     assert signed_areas([]).shape == (0,)
+
+
+def test_simplify_keeps_the_holes_plain_douglas_peucker_would_drop():
+    """The fast plain Douglas-Peucker result is kept only when it is valid
+    with every ring: here it collapses the small hole in an outward bump
+    (GEOS then drops it) and cuts the bump's tip, so the topology-preserving
+    pass runs and keeps both."""
+    from slicer.contours.simplify import simplify
+
+    shell = [(0, 0), (4, 0), (5, -1), (6, 0), (10, 0), (10, 10), (0, 10)]
+    hole = [(4.9, -0.6), (4.9, -0.4), (5.1, -0.4), (5.1, -0.6)]
+    mp = shapely.MultiPolygon([shapely.Polygon(shell, [hole])])
+    plain = shapely.simplify(mp, 1.5, preserve_topology=False)
+    assert shapely.get_num_interior_rings(plain) == 0
+    out = simplify(mp, 1.5)
+    assert out.is_valid and len(out.geoms) == 1 and len(out.geoms[0].interiors) == 1
+    assert (5.0, -1.0) in set(out.geoms[0].exterior.coords)
+    assert out.geoms[0].exterior.is_ccw and not out.geoms[0].interiors[0].is_ccw
+
+
+def test_simplify_drops_the_vertices_a_chord_can_skip_and_keeps_the_rest_on_the_ring():
+    """On a finely sampled circle, simplify keeps a subset of the vertices
+    (so still on the surface) and every dropped vertex is within ``dist`` of
+    the result; the same vertices as the topology-preserving pass."""
+    from slicer.contours.simplify import simplify
+
+    a = np.linspace(0.0, 2 * np.pi, 2000, endpoint=False)
+    ring = np.column_stack([np.cos(a), np.sin(a)])
+    mp = shapely.MultiPolygon([shapely.Polygon(ring)])
+    dist = 1e-4
+    out = simplify(mp, dist)
+    kept = np.asarray(out.geoms[0].exterior.coords)[:-1]
+    assert 50 < len(kept) < 2000
+    assert {tuple(p) for p in kept} <= {tuple(p) for p in ring}
+    assert shapely.distance(out.geoms[0].exterior, shapely.points(ring)).max() <= dist * (1 + 1e-9)
+    ref = shapely.simplify(mp, dist, preserve_topology=True)
+    assert shapely.normalize(out).equals_exact(shapely.normalize(shapely.MultiPolygon([ref])), 0.0)

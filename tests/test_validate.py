@@ -155,6 +155,23 @@ def test_error_time_sweep_small(tmp_path):
     assert plot(res, tmp_path / "p.png").stat().st_size > 1000
 
 
+def test_error_time_contours_compares_the_two_routes_on_one_grid(tmp_path):
+    """``--contours PIXELS LAYERS`` runs the raster route and the guaranteed
+    contours (1 and 10 um) on that grid, and the JSON says so."""
+    from validation.error_time import main as error_time
+
+    out = tmp_path / "et.json"
+    assert error_time(["--model", "cubic_2x2x2", "--contours", "24", "12", "--ref-pixels", "96",
+                       "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    rows = res["rows"]
+    assert [(r["method"], r["tol"]) for r in rows] == [("interval", 1e-3), ("guaranteed", 1e-3), ("guaranteed", 1e-2)]
+    assert {(r["pixels"], r["layers"]) for r in rows} == {(24, 12)}
+    assert res["reference"]["pixels"] == 96 and "--contours" in res["command"]
+    assert all(np.isfinite(r["error_layer"]) and r["seconds"] > 0 and r["evaluations"] > 0 for r in rows)
+    assert rows[1]["contour_vertices"] > 0 and rows[2]["contour_vertices"] > 0
+
+
 def test_cli_bench_needs_a_benchmark():
     res = CliRunner().invoke(main, ["bench"])
     assert res.exit_code == 2 and "error, table1" in res.output

@@ -77,6 +77,14 @@ def default_sweep(quick: bool = False) -> list[dict]:
     return cfgs
 
 
+def contour_sweep(pixels: int = 113, layers: int = 113) -> list[dict]:
+    """The two contour routes on one grid (``--contours``): the tracer's raster
+    with root-refined contours, and the guaranteed contours at 1 and 10 um."""
+    base = {**BASE, "pixels": int(pixels), "layers": int(layers)}
+    return [{**base, "method": "interval"}, {**base, "method": "guaranteed"},
+            {**base, "method": "guaranteed", "tol": 1e-2}]
+
+
 def square_box(skel):
     """The square XY box over the support, and the support's z range, mm."""
     lo, hi = skel.support_bounds()
@@ -280,8 +288,13 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--json", type=Path, default=None, help="write the results here")
     ap.add_argument("--plot", type=Path, default=None, help="write the plot here (needs matplotlib)")
+    ap.add_argument("--contours", nargs=2, type=int, default=None, metavar=("PIXELS", "LAYERS"),
+                    help="only the two contour routes (raster and guaranteed) on this grid")
+    ap.add_argument("--ref-pixels", type=int, default=REF_PIXELS, help="pixels of the reference's sections")
     args = ap.parse_args(argv)
-    res = sweep(args.model, quick=args.quick, repeat=args.repeat, threads=args.threads,
+    configs = contour_sweep(*args.contours) if args.contours else None
+    res = sweep(args.model, configs=configs, quick=args.quick, repeat=args.repeat, threads=args.threads,
+                ref_pixels=args.ref_pixels,
                 progress=lambda r: print(f"  {label(r)}: {r['seconds']:.3f} s, {r['error_layer'] * 1e3:.3f} um",
                                          file=sys.stderr, flush=True))
     res = {"command": machine.command_line("python -m validation.error_time", argv), **res}

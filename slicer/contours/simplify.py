@@ -121,13 +121,31 @@ def simplify(mp, dist: float):
     """Drop vertices of a MultiPolygon that a chord can skip within ``dist`` mm
     (Douglas-Peucker, topology preserved: rings stay simple and apart); the kept
     vertices are a subset, so still on the surface. Returns ``mp`` itself if the
-    result would not be a valid MultiPolygon of the same number of parts."""
-    out = shapely.simplify(mp, dist, preserve_topology=True)
+    result would not be a valid MultiPolygon of the same number of parts.
+
+    Plain Douglas-Peucker runs first: at a fraction of the tolerance it almost
+    never makes rings touch, and it is several times faster than the
+    topology-preserving variant, which runs only when the plain result is not
+    valid or lost a ring (GEOS drops a ring it collapses); where neither has
+    to keep more vertices to stay valid, the two keep the same ones."""
+    holes = shapely.get_num_interior_rings(list(mp.geoms))
+    for keep in (False, True):
+        out = _same_parts(shapely.simplify(mp, dist, preserve_topology=keep), holes)
+        if out is not None:
+            return shapely.MultiPolygon([orient(p, 1.0) for p in out.geoms])
+    return mp
+
+
+def _same_parts(out, holes):
+    """``out`` as a valid MultiPolygon whose polygons have ``holes`` holes
+    each (plain Douglas-Peucker drops a ring it collapses), or None."""
     if out.geom_type == "Polygon":
         out = shapely.MultiPolygon([out])
-    if out.geom_type != "MultiPolygon" or not out.is_valid or len(out.geoms) != len(mp.geoms):
-        return mp
-    return shapely.MultiPolygon([orient(p, 1.0) for p in out.geoms])
+    if out.geom_type != "MultiPolygon" or len(out.geoms) != len(holes):
+        return None
+    if not np.array_equal(shapely.get_num_interior_rings(list(out.geoms)), holes) or not out.is_valid:
+        return None
+    return out
 
 
 def _keep_simple(refined: list[np.ndarray], raw: list[np.ndarray], stats: dict) -> list[np.ndarray]:
