@@ -106,7 +106,7 @@ def bracket_update(act, tm, f, br, reach_t, length, tol, slack):
         m = tm[j]
         g = f[j] - 1.0
         up = g >= 0.0
-        l, h, gl, gh = lo[i], hi[i], glo[i], ghi[i]
+        gl, gh = glo[i], ghi[i]
         if up:
             if side[i] == 1:
                 gh = 0.5 * gh

@@ -128,7 +128,6 @@ def _field(skel: Skeleton, pts: np.ndarray, blend: str = "sum") -> np.ndarray:
 def _widths_at(skel: Skeleton, centre: np.ndarray, dirs: np.ndarray, tau: np.ndarray,
                blend: str = "sum") -> np.ndarray:
     """Smallest diameter of the solid's section through ``centre`` (perpendicular to the axis)."""
-    n = centre.shape[0]
     inside = _field(skel, centre, blend) >= 1.0
     steps = np.arange(1, int(REACH / STEP) + 1) * STEP                 # (M,), in radii
     s = steps[None, None, :] * tau[:, None, None]                      # (n, D, M) mm
