@@ -137,16 +137,14 @@ def refine_root(seg, hprim, sarr, ns, ray, a, b, ga, gb, da, db, tol, bisect, kp
     iso-value (``F >= 1`` is inside); ``da``, ``db`` are ``F'`` along the ray.
     Hermite mode takes the Hermite estimate, kept ``tol / 2`` away from the
     bracket ends so a well-predicted root is bracketed to ``tol`` by the next
-    step; two steps in a row that fail to halve the bracket force a
-    bisection. ``bisect`` uses pure bisection. Each Hermite estimate only
-    has to be good to a fraction of ``tol`` (the next point to evaluate, or
-    the crossing, known to ``tol`` anyway): its Newton steps stop at ``tol / 8``.
+    step (the estimate's Newton steps stop at ``tol / 8``; the final bracket's
+    estimate is the cubic's root); two steps in a row that fail to halve the
+    bracket force a bisection. ``bisect`` uses pure bisection.
 
     Returns
     -------
     t : float
-        The crossing (Hermite estimate to ``tol / 8``, or midpoint, of the
-        final bracket).
+        The crossing (Hermite estimate, or midpoint, of the final bracket).
     gx, gy, gz : float
         Gradient of F at the last point evaluated (within ``tol`` of t).
     nev : int
@@ -196,10 +194,8 @@ def refine_root(seg, hprim, sarr, ns, ray, a, b, ga, gb, da, db, tol, bisect, kp
             fails = 0
     if bisect:
         t = 0.5 * (a + b)
-    elif b > a:
-        t = hermite_point(a, b, ga, gb, da, db, 0.125 * tol / (b - a))
     else:
-        t = a
+        t = hermite_point(a, b, ga, gb, da, db)
     return t, gx, gy, gz, nev, have
 
 
