@@ -478,9 +478,10 @@ def hermite_point(ta, tb, ga, gb, da, db, step=CUBIC_ROOT):
     bracket. With the default, ``CUBIC_ROOT``, the result is the cubic's
     root, a continuous function of the inputs, so pieces that differ by
     rounding (another tiling) give the same estimate to rounding: crossings
-    (spans) and rendered roots need that. A caller that only rounds the
-    estimate to a voxel centre passes a coarser ``step`` (a fraction of the
-    layer height over the bracket) and saves the last Newton steps.
+    (spans) and rendered roots need that. A caller that needs the estimate
+    only to a fraction of a length (a voxel centre to split on, the next
+    point of a root refinement) passes that length over the bracket as
+    ``step`` and saves the last Newton steps.
     ``ga`` and ``gb`` should have opposite signs; the result always lies in
     ``[ta, tb]``.
     """
