@@ -38,7 +38,7 @@ from sample_lattices import load_sample  # noqa: E402
 from slicer.grid import make_grid  # noqa: E402
 from slicer.lattice import generate_lattice  # noqa: E402
 from slicer.slicing import trace  # noqa: E402
-from speed import _square_bounds  # noqa: E402
+from speed import _square_bounds, octet_box  # noqa: E402
 from validation import machine  # noqa: E402
 
 #: job -> (full size, quick size): (pixels, layers)
@@ -57,9 +57,8 @@ def _octet_grid(pixels: int, layers: int, quick: bool):
     """The speed benchmark's octet lattice (one cell when ``quick``) and grid."""
     cells = 1 if quick else 5
     skel = generate_lattice("octet", (cells, cells, cells), 2.0, 0.12, radius_top=0.3)
-    lo, hi = -0.6, 2.0 * cells + 0.6          # the support box: sigma (2) x the top radius (0.3)
-    grid = make_grid(skel.support_bounds(), (hi - lo) / (pixels - 1e-3), layer_height=(hi - lo) / (layers - 1e-3),
-                     bounds=(lo, lo, lo, hi, hi, hi))
+    lo, hi, px, h = octet_box(cells, pixels, layers)
+    grid = make_grid(skel.support_bounds(), px, layer_height=h, bounds=(lo, lo, lo, hi, hi, hi))
     return skel, grid
 
 

@@ -30,6 +30,7 @@ from typing import Iterator
 import numpy as np
 
 from .blend import require_traceable
+from .buckets import DEFAULT_BUCKET
 from .errors import GridError
 from .executors import executor_info as describe
 from .grid import SliceGrid, make_grid
@@ -38,7 +39,6 @@ from .parts import Part, as_part
 from .slicing import SliceResult, coverage_layers, slice_skeleton, trace, trim
 from .tileplan import TilePlan, plan_slice
 from .tiles import slice_planned
-from .buckets import DEFAULT_BUCKET
 
 #: the mesh roles, in the order of the combination's states (lattice first)
 _ROLES = ("clip-inside", "clip-outside", "solid")

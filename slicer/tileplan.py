@@ -21,13 +21,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._kernels.launch import cores
+from .buckets import DEFAULT_BUCKET
 from .field import support_boxes
 from .errors import GridError, OptionError
 from .grid import SliceGrid, make_grid
 from .skeleton import Skeleton
 from .slicing import trace
 from .tiletask import TraceOptions, cull, trace_tile
-from .buckets import DEFAULT_BUCKET
 
 # ---------------------------------------------------------------- memory model (bytes)
 #: held per inside run of a slab while its layers are produced: the merged

@@ -37,6 +37,7 @@ from typing import Iterator
 
 import numpy as np
 
+from .buckets import DEFAULT_BUCKET
 from .errors import GridError
 from .executors import SerialExecutor, map_ordered, open_executor
 from .executors import executor_info as describe
@@ -47,7 +48,6 @@ from .slicing import SliceResult, trace, trim
 from .tileplan import (TilePlan, auto_budget, current_rss, format_size, parse_size, plan_job, plan_slice,
                        sample_runs)
 from .tiletask import TraceOptions, cull, merge_tiles, trace_tile
-from .buckets import DEFAULT_BUCKET
 
 
 class _Runner:

@@ -13,11 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .buckets import DEFAULT_BUCKET
 from .grid import SliceGrid
 from .ordering import rect_parts
 from .skeleton import Skeleton
 from .slicing import SliceResult, trace
-from .buckets import DEFAULT_BUCKET
+
 
 @dataclass(frozen=True)
 class TraceOptions:

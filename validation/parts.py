@@ -29,6 +29,7 @@ import manifold3d
 import numpy as np
 import shapely
 
+from slicer.buckets import DEFAULT_BUCKET
 from slicer.checks import resolvable, scene_reach, scene_step
 from slicer.contours import layer_mask, part_layer_contours, rings_to_multipolygon
 from slicer.errors import GridError
@@ -41,7 +42,6 @@ from .independent import project
 from .metrics import _edge_points, hausdorff, polygon_rings, rasterize_rings
 from .reference_mesh import reference_band
 from .validate import assemble_report, pick_layers
-from slicer.buckets import DEFAULT_BUCKET
 
 #: slack for floating-point noise in distance checks, mm
 SLACK = 1e-9

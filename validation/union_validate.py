@@ -28,6 +28,7 @@ import manifold3d
 import numpy as np
 import shapely
 
+from slicer.buckets import DEFAULT_BUCKET
 from slicer.checks import resolvable, scene_reach, scene_step
 from slicer.contours import layer_contours, layer_mask, rings_to_multipolygon
 from slicer.errors import GridError
@@ -39,7 +40,6 @@ from .independent import plane_distance
 from .metrics import contour_error_bound, hausdorff, polygon_rings, rasterize_rings
 from .reference_mesh import Section, reference_band
 from .validate import assemble_report, default_pitch, pick_layers
-from slicer.buckets import DEFAULT_BUCKET
 
 
 def strut(skel: Skeleton, i: int) -> Skeleton:

@@ -28,6 +28,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from slicer.atomic import AtomicDir, check_destination
+from slicer.buckets import DEFAULT_BUCKET
 from slicer.checks import resolvable, scene_reach, scene_step
 from slicer.contours import layer_contours, layer_mask
 from slicer.errors import GridError
@@ -36,7 +37,6 @@ from slicer.slicing import slice_skeleton
 from .bench import square_bounds
 from .metrics import compare_layer, contour_error_bound, polygon_rings, rasterize_rings, summarise
 from .reference_mesh import reference_sections
-from slicer.buckets import DEFAULT_BUCKET
 
 #: slack for floating-point noise in distance checks, mm
 SLACK = 1e-9

@@ -11,12 +11,12 @@ from __future__ import annotations
 import click
 
 from ..blend import BLENDS
+from ..buckets import DEFAULT_BUCKET
 from ..checks import magnitude
 from ..errors import OptionError
 from ..jobspec import OPTIONS, SliceJob
 from ..parts import Part, load_part
 from ..slicing import METHODS
-from ..buckets import DEFAULT_BUCKET
 
 
 def _stack(*decorators):
