@@ -6,6 +6,7 @@ Usage::
                                         [--threads 1] [--frequency 999] [--json out.json]
     python benchmarks/kernel_profile.py --job render --pixels 700      # the renderer, iso view
     python benchmarks/kernel_profile.py --job contours --model octet_2x2x2 --pixels 113 --layers 113
+    python benchmarks/kernel_profile.py --model octet.json --pixels 256 --layers 504   # any scene file
 
 ``perf`` samples Numba's machine code as anonymous memory: it cannot name the
 functions. This script runs the job in a child process under ``perf record``;
@@ -113,8 +114,9 @@ def _write_map(path: Path) -> int:
 
 def _child(args) -> None:
     from sample_lattices import load_sample
+    from slicer.scene_io import load_scene
 
-    skel = load_sample(args.model)
+    skel = load_scene(args.model) if args.model.endswith(".json") else load_sample(args.model)
     if args.job == "render":
         from slicer.rendering import render
 
@@ -167,7 +169,8 @@ def main(argv=None) -> int:
     ap.add_argument("--job", choices=("trace", "render", "contours"), default="trace",
                     help="trace (slicing, --pixels x --pixels x --layers), render (--pixels square, iso view) "
                          "or contours (the guaranteed contours, tol 1 um, of the --layers planes of that grid)")
-    ap.add_argument("--model", default="microstructure")
+    ap.add_argument("--model", default="microstructure",
+                    help="a sample's name, or a scene file (.json), e.g. the octet lattice of benchmarks/speed.py")
     ap.add_argument("--pixels", type=int, default=256)
     ap.add_argument("--layers", type=int, default=512)
     ap.add_argument("--threads", type=int, default=1)
@@ -197,11 +200,12 @@ def main(argv=None) -> int:
                                 capture_output=True, text=True).stdout
     Path(f"/tmp/perf-{job['pid']}.map").unlink(missing_ok=True)
     shares, jit = kernel_shares(report)
+    model = Path(args.model).name      # a scene file by its name: no local path in the results
     out = {"command": machine.command_line("python benchmarks/kernel_profile.py", argv),
-           "benchmark": "kernel_profile", "job": args.job, "model": args.model, "grid": job["grid"], "threads": args.threads,
+           "benchmark": "kernel_profile", "job": args.job, "model": model, "grid": job["grid"], "threads": args.threads,
            "seconds": job["seconds"], "evaluations": job["evaluations"], "jit_share_of_samples": jit,
            "shares": shares, "machine": machine.describe()}
-    lines = [f"{args.job} {args.model}, {'x'.join(map(str, job['grid']))}, {args.threads} thread(s): "
+    lines = [f"{args.job} {model}, {'x'.join(map(str, job['grid']))}, {args.threads} thread(s): "
              f"{job['seconds']:.2f} s, {job['evaluations']:,} evaluations; kernels hold {jit:.1%} of all "
              f"samples (the rest: compiling)", f"{'kernel function':<40}{'share':>8}"]
     lines += [f"{name:<40}{v:>8.1%}" for name, v in shares.items() if v >= 0.002]

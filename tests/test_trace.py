@@ -253,6 +253,62 @@ def test_inside_stretches_are_leapt_over_not_walked_breakpoint_by_breakpoint(spa
     assert per_column < (3000 if spans else 2000), per_column
 
 
+def _halo(offset=0.8):
+    """A slanted strut ringed by sixteen short fat blobs that have no surface of
+    their own (L = 0.27 tau, docs/math.md §1.5) and lift the field near the
+    strut's surface by a few hundredths to a quarter: members whose bound on a
+    ray is often below WEAK_CUT, with their peaks on the pieces that hold
+    crossings."""
+    rng = np.random.default_rng(3)
+    u = np.array([3.0, 0.0, 2.4]) / np.linalg.norm([3.0, 0.0, 2.4])
+    v = np.cross(u, [0.0, 1.0, 0.0])
+    v /= np.linalg.norm(v)
+    nodes, segs, radii = [[0, 0, 0], [3, 0, 2.4]], [[0, 1]], [[0.45, 0.3]]
+    for k in range(16):
+        ang = 2 * np.pi * k / 16 + 0.3
+        a = u * rng.uniform(0, 1.5) + offset * (np.cos(ang) * np.array([0.0, 1.0, 0.0]) + np.sin(ang) * v)
+        d = u + 0.15 * rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        nodes += [list(a), list(a + 0.08 * d)]
+        segs.append([len(nodes) - 2, len(nodes) - 1])
+        radii.append([0.3, 0.3])
+    return _scene(nodes, segs, radii)
+
+
+def test_weak_members_add_no_cuts_to_their_cluster():
+    """cluster_breakpoints skips the t*, t_in and t_out of a member whose bound
+    on the ray is below ``weak``, and keeps the others' (sorted, inside the
+    cluster)."""
+    from slicer._kernels.rays import cluster_breakpoints
+    from slicer._kernels.raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT
+
+    hrec = np.zeros((3, NHIT))
+    for r, (t_in, t_star, t_out, fmax) in enumerate([(0.0, 1.0, 2.0, 0.9), (0.5, 1.5, 3.0, 0.1),
+                                                     (2.5, 3.5, 4.0, 0.19999)]):
+        hrec[r, [H_TIN, H_TSTAR, H_TOUT, H_FMAX]] = t_in, t_star, t_out, fmax
+    order = np.arange(3, dtype=np.int64)
+    bps = np.empty(16)
+    nb = cluster_breakpoints(hrec, order, 0, 3, 0.0, 4.0, True, 0.0, 0.0, bps)
+    assert list(bps[:nb]) == [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0]
+    nb = cluster_breakpoints(hrec, order, 0, 3, 0.0, 4.0, True, 0.0, 0.0, bps, 0.2)
+    assert list(bps[:nb]) == [0.0, 1.0, 2.0, 4.0]
+
+
+@pytest.mark.parametrize("kw", [{}, {"lazy": True}, {"spans": True}, {"strict": True}])
+def test_weak_members_near_the_surface_keep_every_voxel_exact(kw):
+    """Without their cuts the blobs of :func:`_halo` are bounded by the ambiguous
+    case of docs/math.md §5.1 on the pieces that hold their peaks (§5.7);
+    every voxel centre still takes the class of its own field value."""
+    skel = _halo()
+    grid = make_grid(skel.support_bounds(), 0.05, layer_height=0.05)
+    f = dense_field(skel, grid)
+    strut = Skeleton(skel.nodes, skel.segments[:1], skel.radii[:1])
+    share = (f - dense_field(strut, grid))[np.abs(f - 1.0) < 0.05]
+    assert ((share > 0.01) & (share < 0.2)).sum() > 300   # the blobs matter where the surface is
+    res, _ = assert_exact(skel, grid, "interval", bucket=16, **kw)
+    assert res.n_runs > 900
+
+
 def test_runs_stay_inside_a_grid_that_crops_the_model():
     """Explicit bounds cutting through the model: runs never reach past the
     last layer, and centres beyond the grid are not evaluated."""

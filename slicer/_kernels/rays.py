@@ -142,14 +142,17 @@ def piece_members(hrec, order, a, b, ta, tb, sarr):
 
 
 @unrefcounted_kernel
-def cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, x0, x1, bps):
+def cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, x0, x1, bps, weak=0.0):
     """The breakpoints of the cluster ``order[a:b]`` spanning ``[cs, ce]``
     into ``bps``, sorted and unique; returns their count.
 
     They are ``cs``, ``ce``, every member's cut ``t*`` inside its support
     (EG22), with ``cut_support`` every member's support entry and exit, and
     the extra cuts ``x0``, ``x1``; each one only strictly inside ``(cs, ce)``.
-    The tracer and the renderer both cut their clusters here.
+    A member whose bound on the whole ray (``H_FMAX``) is below ``weak``
+    adds no cut: it stays bounded on the pieces it spans, monotone or not
+    (docs/math.md §5.7). The tracer and the renderer both cut their
+    clusters here.
     """
     bps[0] = cs
     bps[1] = ce
@@ -160,6 +163,8 @@ def cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, x0, x1, bps):
             nb += 1
     for c in range(a, b):
         r = order[c]
+        if hrec[r, H_FMAX] < weak:
+            continue
         t_in = hrec[r, H_TIN]
         t_out = hrec[r, H_TOUT]
         ts = hrec[r, H_TSTAR]

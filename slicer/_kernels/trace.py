@@ -49,6 +49,10 @@ DEEP_SPANS = 150
 #: a centre split's Hermite estimate is refined until a Newton step moves
 #: less than this many layer heights (:func:`_centre_split`)
 CENTRE_STEP = 0.125
+#: members whose bound on the whole ray is below this add no cut to their
+#: cluster (:func:`slicer._kernels.rays.cluster_breakpoints`): fewer pieces,
+#: each bounded as soundly (docs/math.md §5.7)
+WEAK_CUT = 0.2
 
 
 @unrefcounted_kernel
@@ -200,7 +204,9 @@ def _trace_cluster(walk, order, bps, clu, zs, opt, stack, out, tally):
     nrun, nev, nx, inside = tally
     if first_centre(ce, z0, h, K) <= first_centre(cs, z0, h, K) and not (spans and ce > zlo and cs < zhi):
         return tally
-    nb = cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, zlo if spans else cs, zhi if spans else cs, bps)
+    weak = 0.0 if spans or strict else WEAK_CUT
+    nb = cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, zlo if spans else cs, zhi if spans else cs, bps,
+                             weak)
     cur = st_f.shape[0] - 1
     tlast = cs
     j = -1
