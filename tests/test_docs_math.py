@@ -20,7 +20,7 @@ import pytest
 from slicer import Skeleton
 from slicer.commands.info import MIN_ISOLATED_LENGTH
 from slicer.skeleton import DEFAULT_DEGREE, DEFAULT_SIGMA, kernel_normalisation
-from slicer._kernels.field import SCRATCH, _moments
+from slicer._kernels.field import SCRATCH, SHORT_Z, _moments, _series_sum
 from slicer._kernels.raysupport import kprime_abs, kprime_max
 from validation.reference_field import normalisation as reference_normalisation
 
@@ -301,3 +301,21 @@ def test_moments_against_mpmath():
                     ref = mp.quad(lambda y: y**j / (1 - d * y), [0, Y])
                     worst = max(worst, abs(w[34 + j] - float(ref)) / float(ref))
     assert worst < 5e-14, worst
+
+
+def test_series_sum_short_form_against_mpmath():
+    """§2.4: the moment series ``sum_k z^k / (n + 1 + k)`` to a few ulps for every degree,
+    on both sides of ``SHORT_Z`` (below it: a fixed number of terms by Estrin's scheme;
+    above: term by term), and exactly 1/(n + 1) at z = 0 (an untapered strut)."""
+    mp = pytest.importorskip("mpmath")
+    rng = np.random.default_rng(11)
+    zs = np.concatenate([10.0 ** rng.uniform(-12, math.log10(SHORT_Z), 60),
+                         [SHORT_Z, np.nextafter(SHORT_Z, 1.0), 0.07, 0.2, 0.5]])
+    worst = 0.0
+    for nmax in range(2, 17, 2):
+        assert _series_sum(0.0, nmax) == 1.0 / (nmax + 1)
+        for z in zs:
+            with mp.workdps(40):
+                ref = mp.nsum(lambda k: mp.mpf(float(z)) ** k / (nmax + 1 + k), [0, mp.inf])
+            worst = max(worst, abs(_series_sum(float(z), nmax) - float(ref)) / float(ref))
+    assert worst < 4 * np.finfo(float).eps, worst

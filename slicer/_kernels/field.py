@@ -249,6 +249,46 @@ def _poly_mul_quad(w, src, n_src, r0, r1, r2, dst):
         w[dst + j + 2] += c * r2
 
 
+#: below this z the moment series is its first SHORT_TERMS terms, summed by Estrin's scheme
+#: (written out in :func:`_series_sum` as seven pairs)
+SHORT_Z = 0.0625
+SHORT_TERMS = 14
+
+
+@inline_kernel
+def _series_sum(z, nmax):
+    """``sum_{k>=0} z^k / (nmax + 1 + k)`` for 0 <= z < 1 (docs/math.md §2.4).
+
+    For z <= SHORT_Z (every tapered strut of a typical lattice) the first
+    SHORT_TERMS terms, evaluated by Estrin's scheme (pairs, then powers z^2,
+    z^4, z^8: a dependency chain of four steps instead of fourteen); the
+    terms left out add less than 1e-17 of the sum. Otherwise term by term
+    until a term is below 1e-17 of the sum.
+    """
+    c = nmax + 1
+    if z <= SHORT_Z:
+        z2 = z * z
+        z4 = z2 * z2
+        z8 = z4 * z4
+        a0 = _RECIP[c] + z * _RECIP[c + 1]
+        a1 = _RECIP[c + 2] + z * _RECIP[c + 3]
+        a2 = _RECIP[c + 4] + z * _RECIP[c + 5]
+        a3 = _RECIP[c + 6] + z * _RECIP[c + 7]
+        a4 = _RECIP[c + 8] + z * _RECIP[c + 9]
+        a5 = _RECIP[c + 10] + z * _RECIP[c + 11]
+        a6 = _RECIP[c + 12] + z * _RECIP[c + 13]
+        return ((a0 + z2 * a1) + z4 * (a2 + z2 * a3)) + z8 * ((a4 + z2 * a5) + z4 * a6)
+    s = 0.0
+    zk = 1.0
+    for k in range(200):
+        term = zk * _RECIP[c + k]
+        s += term
+        if term < 1e-17 * s:
+            break
+        zk *= z
+    return s
+
+
 @inline_kernel
 def _moments(Y, d, l, nmax, w, J, Yp):
     """w[J + j] = int_0^Y y^j / (1 - d y) dy for j = 0..nmax (docs/math.md §2.4).
@@ -265,15 +305,7 @@ def _moments(Y, d, l, nmax, w, J, Yp):
         # upward recurrence amplifies errors by up to z^-nmax, so it is only
         # used once that is below 64 (z > 0.5 for n = 6; z > 0.77 for n = 16,
         # where the series still converges in < 160 terms).
-        s = 0.0
-        zk = 1.0
-        for k in range(200):
-            term = zk * _RECIP[nmax + k + 1]
-            s += term
-            if term < 1e-17 * s:
-                break
-            zk *= z
-        w[J + nmax] = w[Yp + nmax + 1] * s
+        w[J + nmax] = w[Yp + nmax + 1] * _series_sum(z, nmax)
         for j in range(nmax, 0, -1):
             w[J + j - 1] = d * w[J + j] + w[Yp + j] * _RECIP[j]
     else:
@@ -288,6 +320,10 @@ MAX_DEGREE = 16                       # largest kernel degree n the layout holds
 MAX_COEF = MAX_DEGREE + 1             # coefficients of R^m, m = n / 2
 S_PA, S_PB, S_J, S_YP = 0, MAX_COEF, 2 * MAX_COEF, 3 * MAX_COEF
 assert S_YP + MAX_DEGREE + 3 <= SCRATCH, "segment_eval's scratch layout outgrows SCRATCH"
+# the series terms _series_sum leaves out below SHORT_Z, relative to the sum, for every degree:
+# (c / (c + SHORT_TERMS)) z^SHORT_TERMS / (1 - z), c = n + 1 <= MAX_DEGREE + 1
+assert ((MAX_DEGREE + 1) / (MAX_DEGREE + 1 + SHORT_TERMS) * SHORT_Z ** SHORT_TERMS / (1.0 - SHORT_Z) < 1e-17), \
+    "_series_sum's short form leaves out too much"
 
 
 @inline_kernel
@@ -391,15 +427,7 @@ def _moments_m3_series(d, z, nmax, y):
 
     ``y`` holds Y^1 .. Y^7 (:func:`_powers_m3`). Returns J_0 .. J_6 (tuple of 7).
     """
-    sm = 0.0
-    zk = 1.0
-    for k in range(200):
-        term = zk * _RECIP[nmax + k + 1]
-        sm += term
-        if term < 1e-17 * sm:
-            break
-        zk *= z
-    j6 = y[6] * sm
+    j6 = y[6] * _series_sum(z, nmax)
     j5 = d * j6 + y[5] * _RECIP[6]
     j4 = d * j5 + y[4] * _RECIP[5]
     j3 = d * j4 + y[3] * _RECIP[4]
