@@ -415,7 +415,7 @@ def prim_bound(hrec, r, f0, f1, g0, g1, d0, d1, ta, tb, strict):
     return min(f0, f1), hi, 2
 
 
-@unrefcounted_kernel
+@inline_kernel
 def piece_bounds_iv(hrec, sarr, ns, F, FH, FP, ia, ib, ta, tb, strict, mstat):
     """:func:`piece_bounds` from per-primitive *bounds* at the piece's ends.
 
@@ -424,6 +424,10 @@ def piece_bounds_iv(hrec, sarr, ns, F, FH, FP, ia, ib, ta, tb, strict, mstat):
     each primitive's share is :func:`prim_bound`. With exact ends (``FH`` is
     ``F``) the result is the eager walk's, to the bit. ``mstat`` (None, or
     (ns,) int64, out) receives each primitive's kind on the piece.
+
+    Inlined: a call passes its six arrays as about fifty machine words on
+    the stack, once per piece of every ray, which cost the slicing walk
+    more than the loop itself on sparse scenes (docs/benchmarks.md).
     """
     lo = 0.0
     hi = 0.0
