@@ -26,6 +26,9 @@ from .skeleton import Skeleton
 
 #: tracing methods and their kernel codes
 METHODS = {"interval": 0, "sampling": 1, "segment": 2}
+#: room for runs in a bucket's first launch, per ray; a bucket that needs
+#: more resumes at its first unfinished ray with four times the room
+RUNS_PER_RAY = 4
 
 
 @dataclass
@@ -239,7 +242,7 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
         sizes = np.diff(bk.offsets)
         for s in range(0, len(todo), batch):
             chunk = thread_order(todo[s:s + batch], sizes[todo[s:s + batch]], nthreads)
-            cap = B * B * 4
+            cap = B * B * RUNS_PER_RAY
             results = _run_batch(kern, METHODS[method], chunk, bk, grid, n, sigma, norm,
                                  kmax, strict, cut_support, cap, RUNS_FULL, spans, span_tol,
                                  None if union else lazy)
@@ -316,7 +319,8 @@ def _pair_crossings(grid: SliceGrid, xpix_parts, xz_parts):
 
 def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, kmax, strict,
                cut_support, cap, RUNS_FULL, spans=False, span_tol=None, lazy=None):
-    """Run the kernel on a batch of buckets, retrying overflowing ones with more room.
+    """Run the kernel on a batch of buckets; a bucket that fills its buffers
+    keeps the rays it finished and resumes at the next one with more room.
 
     Returns, per bucket, ``(bucket, runs per ray, k0, k1, evaluations,
     crossings per ray, crossing heights)``. ``lazy`` (None: a kernel
@@ -324,6 +328,8 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
     """
     B = bk.size
     out = []
+    done = {}   # bucket -> the parts of its rays finished so far, in ray order
+    resume = {}   # bucket -> its first ray not yet traced
     cap0, xcap0 = cap, (cap if spans else 1)
     # the launchers' argument bundles (slicer._kernels.trace.trace_buckets), one type each
     buckets = (int(bk.nbx), int(B), bk.offsets, bk.ids, bk.table, bk.boxes)
@@ -339,17 +345,23 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
         ray_nrun = np.zeros((nb, B * B), np.int64)
         run_k0 = np.zeros((nb, cap), np.int32)
         run_k1 = np.zeros((nb, cap), np.int32)
-        stats = np.zeros((nb, 2), np.int64)
+        stats = np.zeros((nb, 3), np.int64)
         ray_nx = np.zeros((nb, B * B), np.int64)
         cross_z = np.zeros((nb, xcap))
+        first = np.array([resume.get(int(b), 0) for b in pending], np.int64)
         with one_item_per_thread():
-            kern(code, pending, buckets, layout, prim, opt, (ray_nrun, run_k0, run_k1, stats, ray_nx, cross_z))
+            kern(code, pending, first, buckets, layout, prim, opt, (ray_nrun, run_k0, run_k1, stats, ray_nx, cross_z))
         full = stats[:, 0] == RUNS_FULL
-        for q in np.nonzero(~full)[0]:
+        for q in range(nb):
             used = int(ray_nrun[q].sum())
             xused = int(ray_nx[q].sum())
-            out.append((pending[q], ray_nrun[q], run_k0[q, :used], run_k1[q, :used], int(stats[q, 1]),
-                        ray_nx[q], cross_z[q, :xused].copy()))
+            b = int(pending[q])
+            done.setdefault(b, []).append((ray_nrun[q], run_k0[q, :used], run_k1[q, :used], int(stats[q, 1]),
+                                           ray_nx[q], cross_z[q, :xused].copy()))
+            if full[q]:
+                resume[b] = int(stats[q, 2])
+            else:
+                out.append((pending[q], *_join_parts(done.pop(b))))
         if full.any() and cap > B * B * (grid.layers + 2) and (not spans or xcap > B * B * (128 * grid.layers + 64)):
             # more runs than a bucket can hold: the kernel's stack, not the buffer, overflowed
             raise RuntimeError("internal error: the tracer's stack overflowed")  # pragma: no cover
@@ -357,6 +369,17 @@ def _run_batch(kern, code, chunk, bk: Buckets, grid: SliceGrid, n, sigma, norm, 
 
     launch_until_fits(launch, chunk, "tracer")
     return out
+
+
+def _join_parts(parts):
+    """One bucket's result from the parts of its rays traced by successive
+    launches (each part covers later rays than the one before):
+    ``(runs per ray, k0, k1, evaluations, crossings per ray, crossing heights)``."""
+    if len(parts) == 1:
+        return parts[0]
+    nrun, k0, k1, ne, nx, xz = zip(*parts)
+    return (np.sum(nrun, axis=0), np.concatenate(k0), np.concatenate(k1), sum(ne), np.sum(nx, axis=0),
+            np.concatenate(xz))
 
 
 def trim(result: SliceResult, margin: int = 1) -> SliceResult:

@@ -366,3 +366,43 @@ def test_a_coarse_hermite_estimate_stays_near_the_cubic_root(ga, gb, alpha, beta
     coarse = hermite_point(ta, ta + w, ga, gb, da, db, step)
     assert ta <= coarse <= ta + w
     assert abs(coarse - exact) <= 2.0 * step * w
+
+
+@pytest.mark.parametrize("blend", ["sum", "union"])
+@pytest.mark.parametrize("spans", [False, True])
+def test_buckets_that_fill_their_buffers_resume(monkeypatch, spans, blend):
+    """A ray through a stack of twelve struts has twelve runs: with room for
+    one run per ray, the buckets fill their buffers, keep the rays they
+    finished and resume at the next one. The runs,
+    spans and evaluation count are those of a launch with room to spare."""
+    import slicer.slicing as slicing
+
+    nodes = [[x, 0.1 * (k % 3), 0.45 * k] for k in range(12) for x in (-1.0, 1.0)]
+    segs = [[2 * k, 2 * k + 1] for k in range(12)]
+    skel = _scene(nodes, segs, np.full((12, 2), 0.15))
+    grid = make_grid(skel.support_bounds(), 0.1, layer_height=0.05)
+    kw = dict(bucket=8, spans=spans, blend=blend)
+    roomy = trace(skel, grid, **kw)
+    launches = []
+    real = slicing.launch_until_fits
+
+    def counting(launch, items, what, **k):
+        def once(pending, scale):
+            launches.append(len(pending))
+            return launch(pending, scale)
+        return real(once, items, what, **k)
+
+    monkeypatch.setattr(slicing, "RUNS_PER_RAY", 1)
+    monkeypatch.setattr(slicing, "launch_until_fits", counting)
+    tight = trace(skel, grid, **kw)
+    assert len(launches) >= 2 and launches[0] > launches[1] > 0
+    assert np.array_equal(tight.pix, roomy.pix)
+    assert np.array_equal(tight.k0, roomy.k0) and np.array_equal(tight.k1, roomy.k1)
+    assert tight.stats["evaluations"] == roomy.stats["evaluations"]
+    if spans:
+        assert np.array_equal(tight.span_pix, roomy.span_pix)
+        assert np.array_equal(tight.span_t0, roomy.span_t0) and np.array_equal(tight.span_t1, roomy.span_t1)
+    vol = tight.volume()
+    f = dense_field(skel, grid)
+    assert not ((vol != (f >= 1.0)) & (np.abs(f - 1.0) > TOL)).any()
+    assert (vol.reshape(grid.layers, -1).astype(bool).sum(axis=0) > 0).sum() > 100

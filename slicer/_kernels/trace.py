@@ -548,7 +548,7 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, xy, col, prim, scratch, hprim, hr
 
 
 @parallel_kernel
-def trace_buckets(method, buckets, bk, grid, prim, opt, out):
+def trace_buckets(method, buckets, first, bk, grid, prim, opt, out):
     """Trace every ray of the given buckets in parallel.
 
     Parameters
@@ -557,6 +557,10 @@ def trace_buckets(method, buckets, bk, grid, prim, opt, out):
         0 interval, 1 sampling, 2 segment tracing.
     buckets : (nb,) int64
         Flat bucket indices (``by * nbx + bx``) to trace.
+    first : (nb,) int64
+        The first ray of each bucket to trace (row-major inside the bucket):
+        0, or where an earlier launch ran out of room, so that a bucket
+        whose buffers filled up resumes instead of starting over.
     bk : tuple
         ``(nbx, B, bucket_off, ids, seg, boxes)``: buckets per row and
         bucket edge (pixels); the CSR bucket lists (int64), each sorted by
@@ -577,23 +581,26 @@ def trace_buckets(method, buckets, bk, grid, prim, opt, out):
     out : tuple, out
         ``(ray_nrun, run_k0, run_k1, stats, ray_nx, cross_z)``: runs per ray
         ((nb, B*B) int64, row-major inside the bucket); the runs of all the
-        bucket's rays, ray after ray ((nb, cap) int32 each); [status,
-        primitive evaluations] per bucket ((nb, 2) int64); crossings per ray
-        ((nb, B*B) int64) and their heights, ray after ray ((nb, xcap)
-        float64, mm).
+        bucket's rays traced, ray after ray ((nb, cap) int32 each);
+        [status, primitive evaluations, the first ray not traced] per
+        bucket ((nb, 3) int64; with status RUNS_FULL, the runs of the rays
+        before that one are complete, and the evaluations are theirs);
+        crossings per ray ((nb, B*B) int64) and their heights, ray after
+        ray ((nb, xcap) float64, mm).
     """
     nbx, B, bucket_off, ids, seg, boxes = bk
     # borrowed views (slicer._kernels.borrow): the arguments outlive the launch
     bk = (nbx, B, bucket_off, borrow(ids), borrow(seg), borrow(boxes))
     for q in prange(buckets.shape[0]):
-        _trace_bucket(method, q, buckets[q], bk, grid, prim, opt, out)
+        _trace_bucket(method, q, buckets[q], first[q], bk, grid, prim, opt, out)
 
 
 @kernel
-def _trace_bucket(method, q, bidx, bk, grid, prim, opt, out):
-    """Trace the rays of bucket ``bidx`` into row ``q`` of the outputs
-    (arguments as :func:`trace_buckets`), ray after ray with one set of
-    work arrays."""
+def _trace_bucket(method, q, bidx, first, bk, grid, prim, opt, out):
+    """Trace the rays ``first, first + 1, ...`` of bucket ``bidx`` into row
+    ``q`` of the outputs (arguments as :func:`trace_buckets`), ray after
+    ray with one set of work arrays, until they are done or the buffers are
+    full."""
     nbx, B, bucket_off, ids, seg, boxes = bk
     W, H, x0, y0, pxs, pys, z0, h, K = grid
     n, sigma, norm, kmax = prim
@@ -620,6 +627,7 @@ def _trace_bucket(method, q, bidx, bk, grid, prim, opt, out):
     xused = 0
     nev_tot = 0
     status = OK
+    stop = B * B
     for ly in range(B):
         j = by * B + ly
         for lx in range(B):
@@ -627,7 +635,7 @@ def _trace_bucket(method, q, bidx, bk, grid, prim, opt, out):
             lr = ly * B + lx
             ray_nrun[q, lr] = 0
             ray_nx[q, lr] = 0
-            if i >= W or j >= H or i1 == i0 or status != OK:
+            if lr < first or i >= W or j >= H or i1 == i0 or status != OK:
                 continue
             px = x0 + i * pxs
             py = y0 - j * pys
@@ -646,15 +654,17 @@ def _trace_bucket(method, q, bidx, bk, grid, prim, opt, out):
             else:
                 nr, ne = trace_ray_segment(seg, boxes, ids, i0, i1, (px, py), (z0, h, K), prim, scratch, hprim, hrec,
                                            order, rk0, rk1, room)
-            nev_tot += ne
-            if nr < 0:
+            if nr < 0:   # resumed at this ray, with more room
                 status = RUNS_FULL
+                stop = lr
                 continue
+            nev_tot += ne
             ray_nrun[q, lr] = nr
             used += nr
             ray_nx[q, lr] = nx
             xused += nx
     stats[q, 0] = status
     stats[q, 1] = nev_tot
+    stats[q, 2] = stop
     keep_alive(own)
     keep_alive(own_st)

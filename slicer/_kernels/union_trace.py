@@ -515,7 +515,7 @@ def store_ray(runs, xs, cnt, rk0, rk1, room, cz, xroom):
 
 
 @parallel_kernel
-def trace_union_buckets(method, buckets, bk, grid, prim, opt, out):
+def trace_union_buckets(method, buckets, first, bk, grid, prim, opt, out):
     """Trace every ray of the given buckets with the union blend, in parallel.
 
     Arguments and outputs as :func:`slicer._kernels.trace.trace_buckets`
@@ -558,6 +558,8 @@ def trace_union_buckets(method, buckets, bk, grid, prim, opt, out):
         used = 0
         xused = 0
         status = OK
+        stop = B * B
+        nev = 0
         for ly in range(B):
             j = by * B + ly
             for lx in range(B):
@@ -565,7 +567,7 @@ def trace_union_buckets(method, buckets, bk, grid, prim, opt, out):
                 lr = ly * B + lx
                 ray_nrun[q, lr] = 0
                 ray_nx[q, lr] = 0
-                if i >= W or j >= H or i1 == i0 or status != OK:
+                if lr < first[q] or i >= W or j >= H or i1 == i0 or status != OK:
                     continue
                 cur[W_PX] = x0 + i * pxs
                 cur[W_PY] = y0 - j * pys
@@ -578,13 +580,16 @@ def trace_union_buckets(method, buckets, bk, grid, prim, opt, out):
                 if ok:
                     ok = store_ray(runs, xs, cnt, rk0_all[used:], rk1_all[used:], cap - used,
                                    cz_all[xused:], xcap - xused)
-                if not ok:
+                if not ok:   # resumed at this ray, with more room
                     status = RUNS_FULL
+                    stop = lr
                     continue
+                nev = cnt[C_EV]
                 ray_nrun[q, lr] = cnt[C_RUN]
                 used += cnt[C_RUN]
                 ray_nx[q, lr] = cnt[C_X]
                 xused += cnt[C_X]
         stats[q, 0] = status
-        stats[q, 1] = cnt[C_EV]
+        stats[q, 1] = nev
+        stats[q, 2] = stop
         keep_alive(own)
