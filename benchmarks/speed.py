@@ -20,7 +20,10 @@ Jobs (full size; ``--quick`` shrinks every one to a smoke test of a few seconds)
     Trace only (``slicer.slicing.trace``): the sample microstructure at
     512 x 512 x 1024, the jellyfish at 512 x 512 x 1024 and x 2048.
 ``render_micro``, ``render_jelly``
-    ``slicer.rendering.render`` of the samples at 700 x 700, iso view.
+    ``slicer.rendering.render`` of the samples at 700 x 700, iso view, timed
+    after an 8 x 8 render in the same process that pays Numba's one-time
+    set-up and the kernels' load (``setup_seconds`` in the JSON), as
+    ``render_bench.py`` does; the trace jobs likewise time the trace alone.
 ``ctb``
     The jellyfish sliced for an Elegoo Saturn 3 Ultra (11520 x 5120 px) into a
     Chitubox CTB file by the ``slice`` command: the whole process, as
@@ -103,9 +106,15 @@ def _worker_render(name: str, size: int, threads: int) -> dict:
     render = _render_function()
 
     skel = load_sample(SAMPLE[name])
+    # Numba's one-time set-up in this process and the kernels' load, paid by a tiny image first
+    # (as render_bench.py; the trace jobs time the trace alone too)
+    t0 = time.perf_counter()
+    render(skel, size=(8, 8), view="iso", threads=threads)
+    setup = time.perf_counter() - t0
     t0 = time.perf_counter()
     res = render(skel, size=(size, size), view="iso", threads=threads)
-    return {"seconds": time.perf_counter() - t0, "evaluations": int(res.stats["evaluations"])}
+    return {"seconds": time.perf_counter() - t0, "evaluations": int(res.stats["evaluations"]),
+            "setup_seconds": setup}
 
 
 def _worker_warm(threads: int) -> dict:
@@ -242,6 +251,8 @@ def _row(job, label, size, runs, key) -> dict:
             row["evaluations_vary"] = True
     if "trace_seconds" in runs[0] and key == "seconds":
         row["median_trace_seconds"] = statistics.median(r["trace_seconds"] for r in runs)
+    if "setup_seconds" in runs[0] and key == "seconds":
+        row["median_setup_seconds"] = statistics.median(r["setup_seconds"] for r in runs)
     return row
 
 
