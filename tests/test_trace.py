@@ -382,7 +382,6 @@ def test_buckets_that_fill_their_buffers_resume(monkeypatch, spans, blend):
     skel = _scene(nodes, segs, np.full((12, 2), 0.15))
     grid = make_grid(skel.support_bounds(), 0.1, layer_height=0.05)
     kw = dict(bucket=8, spans=spans, blend=blend)
-    roomy = trace(skel, grid, **kw)
     launches = []
     real = slicing.launch_until_fits
 
@@ -392,8 +391,12 @@ def test_buckets_that_fill_their_buffers_resume(monkeypatch, spans, blend):
             return launch(pending, scale)
         return real(once, items, what, **k)
 
-    monkeypatch.setattr(slicing, "RUNS_PER_RAY", 1)
     monkeypatch.setattr(slicing, "launch_until_fits", counting)
+    monkeypatch.setattr(slicing, "RUNS_PER_RAY", 64)
+    roomy = trace(skel, grid, **kw)
+    assert len(launches) == 1
+    launches.clear()
+    monkeypatch.setattr(slicing, "RUNS_PER_RAY", 1)
     tight = trace(skel, grid, **kw)
     assert len(launches) >= 2 and launches[0] > launches[1] > 0
     assert np.array_equal(tight.pix, roomy.pix)
