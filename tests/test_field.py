@@ -43,7 +43,10 @@ import reference as ref  # noqa: E402  (independent: does not import slicer)
 
 from slicer import Skeleton  # noqa: E402
 from slicer.field import point_grid, segment_table  # noqa: E402
-from slicer._kernels.field import SCRATCH, segment_eval, support_interval  # noqa: E402
+from slicer._kernels.field import (HALF_LANES, LANES, SCRATCH, lane_copy, lane_load, lane_result,  # noqa: E402
+                                   segment_eval, segment_half_lanes, segment_lanes, support_interval)
+from slicer._kernels.rays import eval_along  # noqa: E402
+from slicer._kernels.raysupport import H_TIN, H_TOUT, NHIT  # noqa: E402
 
 SIG = 2.0
 N6 = 1.4968340312323631
@@ -318,6 +321,112 @@ def _categories():
 
 
 CATEGORIES = _categories()
+
+
+@njit(cache=False)
+def _lane_groups(table, points, width, inv_s2, norm):
+    """Rows ``table`` evaluated ``width`` at a time in the lanes, row r at
+    ``points[r]`` (a group's rows must share their point): f, gradient and
+    whether the lane asked for segment_eval."""
+    k = points.shape[0]
+    out = np.zeros((k, 4))
+    redo = np.zeros(k, np.bool_)
+    scratch = np.empty(SCRATCH)
+    for g in range(0, k, width):
+        n = min(width, k - g)
+        for j in range(n):
+            lane_load(scratch, j, table, g + j)
+        for j in range(n, width):
+            lane_copy(scratch, 0, j)
+        if width == LANES:
+            segment_lanes(scratch, points[g, 0], points[g, 1], points[g, 2], inv_s2, norm)
+        else:
+            segment_half_lanes(scratch, points[g, 0], points[g, 1], points[g, 2], inv_s2, norm)
+        for j in range(n):
+            f, gx, gy, gz, redo[g + j] = lane_result(scratch, j)
+            out[g + j, 0] = f
+            out[g + j, 1] = gx
+            out[g + j, 2] = gy
+            out[g + j, 3] = gz
+    return out, redo
+
+
+@pytest.mark.parametrize("width", [LANES, HALF_LANES])
+@pytest.mark.parametrize("name", list(CATEGORIES))
+def test_lanes_are_segment_eval_to_the_bit(name, width):
+    """segment_lanes (the ray walks' evaluator for n = 6) gives segment_eval's
+    floats exactly, lane by lane, wherever it does not ask for segment_eval;
+    it asks only on the branches it does not take (c2 >= 0: nested or
+    critical tapers; a moment series longer than the short form)."""
+    a, b, ta, tb, p = CATEGORIES[name]
+    table = segment_table(_skeleton_of(a, b, ta, tb))
+    # lanes share one point: move each group's segments so their points meet
+    k = len(ta)
+    first = (np.arange(k) // width) * width
+    shifted = table.copy()
+    shifted[:, 0:3] += p[first] - p
+    pts = np.ascontiguousarray(p[first])
+    lanes, redo = _lane_groups(shifted, pts, width, 1.0 / SIG**2, N6)
+    f, g = _eval_pairs(shifted, np.arange(k), pts, 3, 1.0 / SIG**2, N6, True)
+    want = np.column_stack([f, g])
+    same = (lanes.view(np.int64) == want.view(np.int64)).all(axis=1)
+    assert same[~redo].all(), f"{name}: lane differs from segment_eval at rows {np.flatnonzero(~same & ~redo)[:5]}"
+    delta = shifted[:, 8]
+    rare = ~(delta * delta - 1.0 / SIG**2 < 0.0) | (want[:, 0] != 0.0)
+    assert not (redo & ~rare).any(), f"{name}: lanes gave up on rows segment_eval finds empty"
+    if name in ("near_constant_taper", "long_struts"):   # lattice struts: no lane redone
+        assert not redo.any(), f"{name}: {redo.mean():.1%} of lanes redone"
+
+
+@njit(cache=False)
+def _along_twice(seg, hprim, hrec, ns, ray, t, kp):
+    """eval_along at t twice (the second time from the caches) and the plain
+    loop it stands for: segment_eval member by member, summed in order."""
+    sarr = np.arange(ns)
+    F = np.zeros((3, ns))
+    FP = np.zeros((3, ns))
+    cache = (np.full(ns, np.nan), np.zeros(ns), np.zeros(ns))
+    scratch = np.empty(SCRATCH)
+    tot0, nev0 = eval_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, 0, cache)
+    tot1, nev1 = eval_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, 1, cache)
+    ox, oy, oz, dx, dy, dz = ray
+    tot = 0.0
+    for s in range(ns):
+        if t > hrec[s, H_TIN] and t < hrec[s, H_TOUT]:
+            f, gx, gy, gz = segment_eval(seg, hprim[s], ox + t * dx, oy + t * dy, oz + t * dz, kp[0], kp[1], kp[2],
+                                         True, scratch)
+            F[2, s] = f
+            FP[2, s] = gx * dx + gy * dy + gz * dz
+        tot += F[2, s]
+    return F, FP, (tot0, tot1, tot), (nev0, nev1)
+
+
+@pytest.mark.parametrize("ns", [1, 2, 3, 4, 5, 8, 9, 13, 17])
+def test_eval_along_in_lanes_is_the_plain_loop(ns):
+    """The walks' evaluation at a point (eval_along: lanes from three members
+    on, in groups of eight, a last group of four or fewer in half the lanes, a
+    lone one alone) stores and sums exactly what segment_eval member by member
+    does, skips members whose support interval excludes the point, and takes
+    a second call wholly from the caches."""
+    rng = np.random.default_rng(ns)
+    for trial in range(40):
+        a, b, ta, tb, p = _cat(gen_generic(rng, ns), gen_near_constant(rng, ns), gen_long_struts(rng, ns))
+        pick = rng.choice(len(ta), ns, replace=False)
+        table = segment_table(_skeleton_of(a[pick], b[pick], ta[pick], tb[pick]))
+        q = p[pick]
+        table[:, 0:3] += q[0] - q          # every member's point is the ray's point at t = q[0, 2]
+        hrec = np.zeros((ns, NHIT))
+        hrec[:, H_TIN] = -np.inf
+        hrec[:, H_TOUT] = np.inf
+        hrec[rng.random(ns) < 0.2, H_TOUT] = q[0, 2]      # support interval ending at t: not evaluated
+        ray = (q[0, 0], q[0, 1], 0.0, 0.0, 0.0, 1.0)
+        F, FP, tots, nevs = _along_twice(table, np.arange(ns), hrec, ns, ray, q[0, 2], (3, 1.0 / SIG**2, N6))
+        active = int((hrec[:, H_TOUT] > q[0, 2]).sum())
+        assert nevs == (active, 0), (trial, nevs, active)
+        for row in (0, 1):
+            assert (F[row].view(np.int64) == F[2].view(np.int64)).all(), (trial, row)
+            assert (FP[row].view(np.int64) == FP[2].view(np.int64)).all(), (trial, row)
+        assert tots[0] == tots[2] and tots[1] == tots[2], (trial, tots)
 
 
 @pytest.fixture(scope="module")

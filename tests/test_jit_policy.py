@@ -101,9 +101,12 @@ def _returned_arrays(src: str) -> list[str]:
 
 def test_the_ray_walks_and_the_field_are_unrefcounted():
     for name in ("slicer._kernels.trace.trace_ray_interval", "slicer._kernels.render.render_ray",
-                 "slicer._kernels.field.segment_eval", "slicer._kernels.rays.eval_along",
-                 "slicer._kernels.quadtree._classified"):
+                 "slicer._kernels.field.segment_eval", "slicer._kernels.field.segment_lanes",
+                 "slicer._kernels.field.segment_half_lanes", "slicer._kernels.quadtree._classified"):
         assert name in UNREFCOUNTED, name
+    # the evaluation along a ray is inlined into those walks: no call, nothing counted
+    for name in ("slicer._kernels.rays.eval_along", "slicer._kernels.rays.eval_lanes_along"):
+        assert DISPATCHERS[name].get("inline") == "always", name
 
 
 @pytest.mark.parametrize("name", UNREFCOUNTED)

@@ -97,7 +97,7 @@ class Ray:
         scratch = np.empty(SCRATCH)
         for row, t in enumerate((ta, tb)):
             eval_along(self.seg, hprim, self.rec, sarr, 1, (*self.o, *self.d), t,
-                       (s.degree // 2, 1.0 / s.sigma**2, s.normalisation), scratch, F, FP, row, ct, cf, cfp)
+                       (s.degree // 2, 1.0 / s.sigma**2, s.normalisation), scratch, F, FP, row, (ct, cf, cfp))
         return piece_bounds(self.rec, sarr, 1, F, FP, 0, 1, ta, tb, strict), (F[0, 0], F[1, 0])
 
     def describe(self):

@@ -15,7 +15,9 @@ col   meaning
 ====  ===========================================
 
 ``scratch`` arguments are float64 work arrays of at least ``SCRATCH`` entries,
-allocated once per point batch / ray by the caller.
+allocated once per point batch / ray by the caller. Their first ``SERIES``
+entries are :func:`segment_eval`'s; the rest hold the ``LANES`` segments that
+:func:`segment_lanes` evaluates at one point at once (layout below).
 """
 from __future__ import annotations
 
@@ -25,12 +27,23 @@ import numpy as np
 
 from .._jit import inline_kernel, unrefcounted_kernel
 
-SCRATCH = 72
 # 1/k for k < 256: the moment series multiplies instead of dividing per term
 _RECIP = np.array([0.0] + [1.0 / k for k in range(1, 256)])
 # columns of the segment table
 AX, AY, AZ, UX, UY, UZ, LEN, TAU0, DELTA, TAU1 = range(10)
 NCOL = 10
+
+#: entries of a scratch array used by the general series (:func:`_series`)
+SERIES = 72
+#: segments :func:`segment_lanes` evaluates at once (8 float64: one AVX-512 register)
+LANES = 8
+#: scratch offsets of the lanes: the segment table's NCOL columns (column c of
+#: lane k at ``LANE_IN + c * LANES + k``), then f, gx, gy, gz and the "redo"
+#: flag (``LANE_OUT + o * LANES + k``, o = 0..4), then each lane's caller tag
+LANE_IN = SERIES
+LANE_OUT = LANE_IN + NCOL * LANES
+LANE_TAG = LANE_OUT + 5 * LANES
+SCRATCH = LANE_TAG + LANES
 
 
 @inline_kernel
@@ -44,12 +57,12 @@ def _axial_split(seg, i, px, py, pz):
     qx, qy, qz, perp2 : float
         The component of p - a perpendicular to the axis (mm), its square norm.
     """
-    wx = px - seg[i, AX]
-    wy = py - seg[i, AY]
-    wz = pz - seg[i, AZ]
-    ux = seg[i, UX]
-    uy = seg[i, UY]
-    uz = seg[i, UZ]
+    return _axial_parts(px - seg[i, AX], py - seg[i, AY], pz - seg[i, AZ], seg[i, UX], seg[i, UY], seg[i, UZ])
+
+
+@inline_kernel
+def _axial_parts(wx, wy, wz, ux, uy, uz):
+    """:func:`_axial_split` of ``w = p - a`` on the unit axis ``u``."""
     wu = wx * ux + wy * uy + wz * uz
     qx = wx - wu * ux
     qy = wy - wu * uy
@@ -157,6 +170,20 @@ def _clip_linear(h, c0, lo, hi):
 
 
 @inline_kernel
+def _support_quadratic(tau0, d, to, e, wu, perp2, inv_s2):
+    """The support polynomial's coefficients about the origin ``to``
+    (:func:`_support_local`): ``tau_o`` (radius there), ``c2``, ``h = c1/2``,
+    ``c0`` and the discriminant ``h^2 - c2 c0``, computed without cancellation."""
+    tau_o = tau0 + d * to
+    tfoot = tau0 + d * wu
+    c2 = d * d - inv_s2
+    h = tau_o * d + e * inv_s2                       # c1 / 2
+    c0 = tau_o * tau_o - (perp2 + e * e) * inv_s2
+    disc = (tfoot * tfoot + c2 * perp2) * inv_s2     # h^2 - c2 c0
+    return tau_o, c2, h, c0, disc
+
+
+@inline_kernel
 def _support_local(seg, i, px, py, pz, inv_s2):
     """Support interval of segment ``i`` at p, in arc lengths measured from a
     local origin ``to``: the foot of p on the axis, clamped to [0, L]
@@ -193,12 +220,7 @@ def _support_local(seg, i, px, py, pz, inv_s2):
     tau0 = seg[i, TAU0]
     wu, qx, qy, qz, perp2 = _axial_split(seg, i, px, py, pz)
     to, e = _local_origin(wu, L)
-    tau_o = tau0 + d * to
-    tfoot = tau0 + d * wu
-    c2 = d * d - inv_s2
-    h = tau_o * d + e * inv_s2                       # c1 / 2
-    c0 = tau_o * tau_o - (perp2 + e * e) * inv_s2
-    disc = (tfoot * tfoot + c2 * perp2) * inv_s2     # h^2 - c2 c0
+    tau_o, c2, h, c0, disc = _support_quadratic(tau0, d, to, e, wu, perp2, inv_s2)
     lo = -to
     hi = L - to
     if c2 < 0.0:
@@ -256,6 +278,22 @@ SHORT_TERMS = 14
 
 
 @inline_kernel
+def _short_sum(z, c):
+    """``sum_{k<SHORT_TERMS} z^k / (c + k)`` by Estrin's scheme (:func:`_series_sum`)."""
+    z2 = z * z
+    z4 = z2 * z2
+    z8 = z4 * z4
+    a0 = _RECIP[c] + z * _RECIP[c + 1]
+    a1 = _RECIP[c + 2] + z * _RECIP[c + 3]
+    a2 = _RECIP[c + 4] + z * _RECIP[c + 5]
+    a3 = _RECIP[c + 6] + z * _RECIP[c + 7]
+    a4 = _RECIP[c + 8] + z * _RECIP[c + 9]
+    a5 = _RECIP[c + 10] + z * _RECIP[c + 11]
+    a6 = _RECIP[c + 12] + z * _RECIP[c + 13]
+    return ((a0 + z2 * a1) + z4 * (a2 + z2 * a3)) + z8 * ((a4 + z2 * a5) + z4 * a6)
+
+
+@inline_kernel
 def _series_sum(z, nmax):
     """``sum_{k>=0} z^k / (nmax + 1 + k)`` for 0 <= z < 1 (docs/math.md §2.4).
 
@@ -267,17 +305,7 @@ def _series_sum(z, nmax):
     """
     c = nmax + 1
     if z <= SHORT_Z:
-        z2 = z * z
-        z4 = z2 * z2
-        z8 = z4 * z4
-        a0 = _RECIP[c] + z * _RECIP[c + 1]
-        a1 = _RECIP[c + 2] + z * _RECIP[c + 3]
-        a2 = _RECIP[c + 4] + z * _RECIP[c + 5]
-        a3 = _RECIP[c + 6] + z * _RECIP[c + 7]
-        a4 = _RECIP[c + 8] + z * _RECIP[c + 9]
-        a5 = _RECIP[c + 10] + z * _RECIP[c + 11]
-        a6 = _RECIP[c + 12] + z * _RECIP[c + 13]
-        return ((a0 + z2 * a1) + z4 * (a2 + z2 * a3)) + z8 * ((a4 + z2 * a5) + z4 * a6)
+        return _short_sum(z, c)
     s = 0.0
     zk = 1.0
     for k in range(200):
@@ -319,7 +347,7 @@ def _moments(Y, d, l, nmax, w, J, Yp):
 MAX_DEGREE = 16                       # largest kernel degree n the layout holds
 MAX_COEF = MAX_DEGREE + 1             # coefficients of R^m, m = n / 2
 S_PA, S_PB, S_J, S_YP = 0, MAX_COEF, 2 * MAX_COEF, 3 * MAX_COEF
-assert S_YP + MAX_DEGREE + 3 <= SCRATCH, "segment_eval's scratch layout outgrows SCRATCH"
+assert S_YP + MAX_DEGREE + 3 <= SERIES, "segment_eval's scratch layout outgrows SERIES"
 # the series terms _series_sum leaves out below SHORT_Z, relative to the sum, for every degree:
 # (c / (c + SHORT_TERMS)) z^SHORT_TERMS / (1 - z), c = n + 1 <= MAX_DEGREE + 1
 assert ((MAX_DEGREE + 1) / (MAX_DEGREE + 1 + SHORT_TERMS) * SHORT_Z ** SHORT_TERMS / (1.0 - SHORT_Z) < 1e-17), \
@@ -427,7 +455,13 @@ def _moments_m3_series(d, z, nmax, y):
 
     ``y`` holds Y^1 .. Y^7 (:func:`_powers_m3`). Returns J_0 .. J_6 (tuple of 7).
     """
-    j6 = y[6] * _series_sum(z, nmax)
+    return _downward_m3(d, y[6] * _series_sum(z, nmax), y)
+
+
+@inline_kernel
+def _downward_m3(d, j6, y):
+    """J_5 .. J_0 from J_6 by the damping downward recurrence
+    ``J_(j-1) = d J_j + Y^j / j`` (``y`` holds Y^1 .. Y^7). Returns J_0 .. J_6."""
     j5 = d * j6 + y[5] * _RECIP[6]
     j4 = d * j5 + y[4] * _RECIP[5]
     j3 = d * j4 + y[3] * _RECIP[4]
@@ -435,6 +469,13 @@ def _moments_m3_series(d, z, nmax, y):
     j1 = d * j2 + y[1] * _RECIP[2]
     j0 = d * j1 + y[0] * _RECIP[1]
     return j0, j1, j2, j3, j4, j5, j6
+
+
+@inline_kernel
+def _exact_m3(y):
+    """J_0 .. J_6 for d = 0: ``Y^(j+1) / (j + 1)`` (``y`` holds Y^1 .. Y^7)."""
+    return (y[0] * _RECIP[1], y[1] * _RECIP[2], y[2] * _RECIP[3], y[3] * _RECIP[4],
+            y[4] * _RECIP[5], y[5] * _RECIP[6], y[6] * _RECIP[7])
 
 
 @inline_kernel
@@ -452,8 +493,7 @@ def _moments_m3(Y, d, l, nmax, y):
     """
     z = d * Y
     if d == 0.0:
-        return (y[0] * _RECIP[1], y[1] * _RECIP[2], y[2] * _RECIP[3], y[3] * _RECIP[4],
-                y[4] * _RECIP[5], y[5] * _RECIP[6], y[6] * _RECIP[7])
+        return _exact_m3(y)
     if z <= 0.5 or z ** nmax <= 0.015625:
         return _moments_m3_series(d, z, nmax, y)
     j0 = math.log1p(d * l) / d
@@ -504,6 +544,19 @@ def _grad_sums_m3(a, y, d):
 
 
 @inline_kernel
+def _dot_m3(b, J):
+    """``sum_j [R^3]_j J_j``, j = 0..6, in order from 0.0 (as :func:`_series`)."""
+    f = 0.0 + b[0] * J[0]
+    f += b[1] * J[1]
+    f += b[2] * J[2]
+    f += b[3] * J[3]
+    f += b[4] * J[4]
+    f += b[5] * J[5]
+    f += b[6] * J[6]
+    return f
+
+
+@inline_kernel
 def _series_m3(Y, d, l, r0, r1, r2, m, grad):
     """:func:`_series` for the default kernel n = 6 (m = 3): the same
     operations in the same order on scalars (bit-identical results), without
@@ -517,18 +570,26 @@ def _series_m3(Y, d, l, r0, r1, r2, m, grad):
     """
     y = _powers_m3(Y)
     a, b = _cube_m3(r0, r1, r2)
-    J = _moments_m3(Y, d, l, 2 * m, y)
-    f = 0.0 + b[0] * J[0]
-    f += b[1] * J[1]
-    f += b[2] * J[2]
-    f += b[3] * J[3]
-    f += b[4] * J[4]
-    f += b[5] * J[5]
-    f += b[6] * J[6]
+    f = _dot_m3(b, _moments_m3(Y, d, l, 2 * m, y))
     if not grad:
         return f, 0.0, 0.0
     h0, h1 = _grad_sums_m3(a, y, d)
     return f, h0, h1
+
+
+@inline_kernel
+def _from_entry(qx, qy, qz, perp2, ux, uy, uz, wu, taua, d, inv_s2):
+    """``w = p - q(ta) = perp + wu u`` (``wu = e - lo``) from the local frame,
+    and the coefficients of ``R`` in t about the support's entry: ``p0``,
+    ``p1``, ``p2`` (docs/math.md §2.4). Returns ``wx, wy, wz, p0, p1, p2``."""
+    wx = qx + wu * ux
+    wy = qy + wu * uy
+    wz = qz + wu * uz
+    ww = perp2 + wu * wu
+    p0 = 1.0 - ww * inv_s2 / (taua * taua)
+    p1 = 2.0 * (d + wu * inv_s2 / taua)
+    p2 = d * d - inv_s2
+    return wx, wy, wz, p0, p1, p2
 
 
 @unrefcounted_kernel
@@ -572,14 +633,7 @@ def segment_eval(seg, i, px, py, pz, m, inv_s2, norm, grad, scratch):
     # w = p - q(ta) = perp + (e - lo) u, from the local frame: its component
     # along u is a difference of small numbers, not of two arc lengths from a
     taua = tau_o + d * lo if root_a else seg[i, TAU0]
-    wu = e - lo
-    wx = qx + wu * ux
-    wy = qy + wu * uy
-    wz = qz + wu * uz
-    ww = perp2 + wu * wu
-    p0 = 1.0 - ww * inv_s2 / (taua * taua)
-    p1 = 2.0 * (d + wu * inv_s2 / taua)
-    p2 = d * d - inv_s2
+    wx, wy, wz, p0, p1, p2 = _from_entry(qx, qy, qz, perp2, ux, uy, uz, e - lo, taua, d, inv_s2)
     # support length: local where both ends are roots, exactly L where both are
     # clips, else from the exact clip offset (-to or L - to: 0 or L when the
     # origin is an end; L - foot is exact near the far end by Sterbenz)
@@ -612,3 +666,142 @@ def segment_eval(seg, i, px, py, pz, m, inv_s2, norm, grad, scratch):
     gy = s * (wy * h0 - taua * uy * h1)
     gz = s * (wz * h0 - taua * uz * h1)
     return f, gx, gy, gz
+
+
+# ---------------------------------------------------------------- lanes
+# segment_eval for n = 6 on LANES segments at one point: the same operations
+# in the same order, with selects where segment_eval branches, so that LLVM
+# evaluates the lanes side by side in vector registers (no fastmath: every
+# operation is the IEEE one segment_eval does, so every lane's result is its
+# result, to the bit). Lanes segment_eval would send down a rarer branch
+# (nested end balls, c2 >= 0; a moment series longer than the short form) are
+# flagged for the caller to redo with segment_eval.
+
+@inline_kernel
+def lane_load(scratch, k, seg, i):
+    """Put row ``i`` of the segment table in lane ``k`` of ``scratch``."""
+    for c in range(NCOL):
+        scratch[LANE_IN + c * LANES + k] = seg[i, c]
+
+
+@inline_kernel
+def lane_copy(scratch, k, j):
+    """Copy lane ``k``'s segment to lane ``j``."""
+    for c in range(NCOL):
+        scratch[LANE_IN + c * LANES + j] = scratch[LANE_IN + c * LANES + k]
+
+
+@inline_kernel
+def lane_result(scratch, k):
+    """``(f, gx, gy, gz, redo)`` of lane ``k`` after :func:`segment_lanes`;
+    ``redo``: evaluate this segment with :func:`segment_eval` instead."""
+    return (scratch[LANE_OUT + k], scratch[LANE_OUT + LANES + k], scratch[LANE_OUT + 2 * LANES + k],
+            scratch[LANE_OUT + 3 * LANES + k], scratch[LANE_OUT + 4 * LANES + k] != 0.0)
+
+
+@inline_kernel
+def _lane_support(wx, wy, wz, ux, uy, uz, L, tau0, d, inv_s2):
+    """:func:`_support_local` with ``_clip_cone`` (c2 < 0), branch-free.
+
+    Returns ``to, e, lo, hi, root_a, root_b, qx, qy, qz, perp2, tau_o, empty``.
+    """
+    wu, qx, qy, qz, perp2 = _axial_parts(wx, wy, wz, ux, uy, uz)
+    below = wu <= 0.0
+    beyond = wu >= L
+    to = 0.0 if below else (L if beyond else wu)
+    e = wu if below else (wu - L if beyond else 0.0)
+    tau_o, c2, h, c0, disc = _support_quadratic(tau0, d, to, e, wu, perp2, inv_s2)
+    lo = -to
+    hi = L - to
+    sq = math.sqrt(disc if disc > 0.0 else 1.0)
+    q = -(h + sq) if h >= 0.0 else -(h - sq)
+    qq = q if q != 0.0 else 1.0
+    r1 = qq / c2
+    r2 = c0 / qq
+    rlo = min(r1, r2)
+    rhi = max(r1, r2)
+    root_a = rlo > lo
+    lo = rlo if root_a else lo
+    root_b = rhi < hi
+    hi = rhi if root_b else hi
+    empty = disc <= 0.0 or q == 0.0 or not hi > lo
+    return to, e, lo, hi, root_a, root_b, qx, qy, qz, perp2, tau_o, empty
+
+
+@inline_kernel
+def _lane_moments(Y, d):
+    """:func:`_moments_m3`'s d = 0 and short-series branches, as a select:
+    Y^1 .. Y^7 and J_0 .. J_6 (two tuples of 7)."""
+    y = _powers_m3(Y)
+    J = _downward_m3(d, y[6] * _short_sum(d * Y, 7), y)
+    if d == 0.0:
+        J = _exact_m3(y)
+    return y, J
+
+
+@inline_kernel
+def _lane(scratch, k, px, py, pz, inv_s2, norm):
+    """Lane ``k`` of :func:`segment_lanes`."""
+    ux = scratch[LANE_IN + UX * LANES + k]
+    uy = scratch[LANE_IN + UY * LANES + k]
+    uz = scratch[LANE_IN + UZ * LANES + k]
+    L = scratch[LANE_IN + LEN * LANES + k]
+    tau0 = scratch[LANE_IN + TAU0 * LANES + k]
+    d = scratch[LANE_IN + DELTA * LANES + k]
+    to, e, lo, hi, root_a, root_b, qx, qy, qz, perp2, tau_o, empty = _lane_support(
+        px - scratch[LANE_IN + AX * LANES + k], py - scratch[LANE_IN + AY * LANES + k],
+        pz - scratch[LANE_IN + AZ * LANES + k], ux, uy, uz, L, tau0, d, inv_s2)
+    # from here on, segment_eval's operations (see there)
+    taua = tau_o + d * lo if root_a else tau0
+    wx, wy, wz, p0, p1, p2 = _from_entry(qx, qy, qz, perp2, ux, uy, uz, e - lo, taua, d, inv_s2)
+    if root_a:
+        span = hi - lo if root_b else (L - to) - lo
+    else:
+        span = hi + to if root_b else L
+    l = span / taua
+    Y = l / (1.0 + d * l)
+    p0 = 0.0 if root_a else p0
+    r0 = p0
+    r1 = p1 - 2.0 * d * p0
+    r2 = p2 - d * p1 + d * d * p0
+    Yd = Y if Y != 0.0 else 1.0
+    r1 = -(r0 / Yd + r2 * Y) if root_b else r1
+    a, b = _cube_m3(r0, r1, r2)
+    y, J = _lane_moments(Y, d)
+    f = _dot_m3(b, J)
+    h0, h1 = _grad_sums_m3(a, y, d)
+    f *= norm
+    s = -2.0 * 3 * norm * inv_s2 / (taua * taua)
+    gx = s * (wx * h0 - taua * ux * h1)
+    gy = s * (wy * h0 - taua * uy * h1)
+    gz = s * (wz * h0 - taua * uz * h1)
+    # c2 >= 0: the lane's support clip is not segment_eval's (whose may be non-empty)
+    redo = (not d * d - inv_s2 < 0.0) or (not empty and d * Y > SHORT_Z and d != 0.0)
+    scratch[LANE_OUT + k] = 0.0 if empty else f
+    scratch[LANE_OUT + LANES + k] = 0.0 if empty else gx
+    scratch[LANE_OUT + 2 * LANES + k] = 0.0 if empty else gy
+    scratch[LANE_OUT + 3 * LANES + k] = 0.0 if empty else gz
+    scratch[LANE_OUT + 4 * LANES + k] = 1.0 if redo else 0.0
+
+
+@unrefcounted_kernel
+def segment_lanes(scratch, px, py, pz, inv_s2, norm):
+    """:func:`segment_eval` (n = 6, with the gradient) of the segments loaded
+    in lanes 0 .. LANES - 1 of ``scratch`` (:func:`lane_load`) at the point p
+    (mm), side by side; read each with :func:`lane_result`. A lane flagged
+    ``redo`` holds no value: its segment takes a branch the lanes do not
+    (c2 >= 0, or ``d Y > SHORT_Z``). Every lane is computed, so unused ones
+    must hold a valid row (a copy)."""
+    for k in range(LANES):
+        _lane(scratch, k, px, py, pz, inv_s2, norm)
+
+
+#: lanes of :func:`segment_half_lanes`
+HALF_LANES = LANES // 2
+
+
+@unrefcounted_kernel
+def segment_half_lanes(scratch, px, py, pz, inv_s2, norm):
+    """:func:`segment_lanes` over lanes 0 .. HALF_LANES - 1 only."""
+    for k in range(HALF_LANES):
+        _lane(scratch, k, px, py, pz, inv_s2, norm)

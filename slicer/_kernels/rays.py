@@ -22,7 +22,8 @@ import math
 import numpy as np
 
 from .._jit import inline_kernel, kernel, unrefcounted_kernel
-from .field import SCRATCH, segment_eval
+from .field import (HALF_LANES, LANE_TAG, LANES, SCRATCH, lane_copy, lane_load, lane_result, segment_eval,
+                    segment_half_lanes, segment_lanes)
 from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz
 
 #: relative pad of every verdict "F > 1" / "F < 1" from bounds: a bound must
@@ -201,8 +202,8 @@ def sort_unique(vals, nv):
     return w
 
 
-@unrefcounted_kernel
-def eval_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, ct, cf, cfp):
+@inline_kernel
+def eval_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, cache):
     """Value and directional derivative ``grad f . d`` of the active primitives
     ``hprim[sarr[:ns]]`` at ``o + t d`` (``ray = (ox, oy, oz, dx, dy, dz)``,
     ``kp = (m, 1/sigma^2, N)``).
@@ -210,8 +211,11 @@ def eval_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, ct, 
     A primitive is zero (value and derivative) outside the open support
     interval ``(t_in, t_out)`` of its hit record, and at its ends (the kernel
     vanishes to order n/2 there), so it is not evaluated there; each hit
-    caches its last (t, f, f') in ``ct``, ``cf``, ``cfp``, so a breakpoint
-    shared by two pieces is evaluated once.
+    caches its last (t, f, f') in ``cache = (ct, cf, cfp)``, so a breakpoint
+    shared by two pieces is evaluated once. With the default kernel (n = 6)
+    and ``LANES_FROM`` or more members, :func:`eval_lanes_along` evaluates
+    them in lanes, with the same results to the bit. Inlined into the walks
+    (a call would pass its arrays on the stack at every point).
 
     Returns
     -------
@@ -221,6 +225,9 @@ def eval_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, ct, 
     nev : int
         Primitive evaluations done.
     """
+    ct, cf, cfp = cache
+    if kp[0] == 3 and ns >= LANES_FROM:
+        return eval_lanes_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, ct, cf, cfp)
     ox, oy, oz, dx, dy, dz = ray
     m, inv_s2, norm = kp
     px = ox + t * dx
@@ -247,6 +254,97 @@ def eval_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, ct, 
         FP[row, s] = fp
         tot += f
     return tot, nev
+
+
+#: fewest members of a piece whose evaluations go through the lanes
+#: (:func:`eval_lanes_along`); with fewer, most points evaluate one or two
+LANES_FROM = 3
+
+
+@inline_kernel
+def eval_lanes_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, ct, cf, cfp):
+    """:func:`eval_along` with the members to evaluate gathered into lanes
+    (:func:`slicer._kernels.field.segment_lanes`): loaded in member order, each
+    lane tagged with its member, evaluated eight at a time, a last group of
+    four or fewer in half the lanes, a last lone one by :func:`segment_eval`.
+    The results are :func:`segment_eval`'s to the bit and the sum runs in
+    member order, so the returns are :func:`eval_along`'s."""
+    k = 0
+    nev = 0
+    for s in range(ns):
+        r = sarr[s]
+        if not (t > hrec[r, H_TIN] and t < hrec[r, H_TOUT]):
+            F[row, s] = 0.0
+            FP[row, s] = 0.0
+        elif ct[r] == t:
+            F[row, s] = cf[r]
+            FP[row, s] = cfp[r]
+        else:
+            lane_load(scratch, k, seg, hprim[r])
+            scratch[LANE_TAG + k] = s
+            k += 1
+            nev += 1
+            if k == LANES:
+                _lanes_done(seg, hprim, sarr, k, ray, t, kp, scratch, F, FP, row, ct, cf, cfp)
+                k = 0
+    if k == 1:
+        _lane_alone(seg, hprim, sarr, ray, t, kp, scratch, F, FP, row, ct, cf, cfp)
+    elif k > 1:
+        _lanes_done(seg, hprim, sarr, k, ray, t, kp, scratch, F, FP, row, ct, cf, cfp)
+    tot = 0.0
+    for s in range(ns):
+        tot += F[row, s]
+    return tot, nev
+
+
+@inline_kernel
+def _lane_alone(seg, hprim, sarr, ray, t, kp, scratch, F, FP, row, ct, cf, cfp):
+    """Evaluate the one loaded lane's member by :func:`segment_eval` (one
+    segment costs less alone than in the lanes)."""
+    ox, oy, oz, dx, dy, dz = ray
+    m, inv_s2, norm = kp
+    s = int(scratch[LANE_TAG])
+    r = sarr[s]
+    f, gx, gy, gz = segment_eval(seg, hprim[r], ox + t * dx, oy + t * dy, oz + t * dz, m, inv_s2, norm, True,
+                                 scratch)
+    _store(F, FP, row, s, r, t, f, gx * dx + gy * dy + gz * dz, ct, cf, cfp)
+
+
+@inline_kernel
+def _store(F, FP, row, s, r, t, f, fp, ct, cf, cfp):
+    """One evaluation into its member's column and its hit's cache."""
+    F[row, s] = f
+    FP[row, s] = fp
+    ct[r] = t
+    cf[r] = f
+    cfp[r] = fp
+
+
+@inline_kernel
+def _lanes_done(seg, hprim, sarr, k, ray, t, kp, scratch, F, FP, row, ct, cf, cfp):
+    """Evaluate the first ``k`` loaded lanes and store each in its member's
+    column and its hit's cache (:func:`eval_lanes_along`): ``HALF_LANES`` or
+    fewer in half the lanes, unused lanes repeating the first; lanes flagged
+    ``redo`` are evaluated by :func:`segment_eval`."""
+    ox, oy, oz, dx, dy, dz = ray
+    m, inv_s2, norm = kp
+    px = ox + t * dx
+    py = oy + t * dy
+    pz = oz + t * dz
+    width = HALF_LANES if k <= HALF_LANES else LANES
+    for j in range(k, width):
+        lane_copy(scratch, 0, j)
+    if width == HALF_LANES:
+        segment_half_lanes(scratch, px, py, pz, inv_s2, norm)
+    else:
+        segment_lanes(scratch, px, py, pz, inv_s2, norm)
+    for j in range(k):
+        s = int(scratch[LANE_TAG + j])
+        r = sarr[s]
+        f, gx, gy, gz, redo = lane_result(scratch, j)
+        if redo:
+            f, gx, gy, gz = segment_eval(seg, hprim[r], px, py, pz, m, inv_s2, norm, True, scratch)
+        _store(F, FP, row, s, r, t, f, gx * dx + gy * dy + gz * dz, ct, cf, cfp)
 
 
 #: inside leaps (:func:`leap_chain`): breakpoints tried ahead at first, and at most

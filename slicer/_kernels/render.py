@@ -366,7 +366,7 @@ def _render_cluster(walk, order, bps, st_t, clu, opt, shade, out, acc):
         if ns == 0 or fmax < 1.0 - PAD * (1.0 + fmax):
             continue   # the primitives' bounds on the whole ray exclude 1
         if strict or not lazy:
-            fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, st_f, st_fp, cur, *cache)
+            fcur, ne1 = eval_along(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, st_f, st_fp, cur, cache)
             if not strict and fcur >= 1.0 and piece + 2 < nb:
                 # inside at ta: no crossing as far as the unimodal lower bound reaches
                 jj, ne = leap_chain(seg, hprim, hrec, sarr, ns, (st_f, st_fp), cur, ray, bps, piece, nb, fcur,
@@ -376,7 +376,7 @@ def _render_cluster(walk, order, bps, st_t, clu, opt, shade, out, acc):
                     counts[0] += ne1
                     piece = jj - 1
                     continue
-            _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, st_f, st_fp, 0, *cache)
+            _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, st_f, st_fp, 0, cache)
         else:
             settled, ne = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, cur, 0, mstat, cache)
             counts[0] += ne
@@ -422,7 +422,7 @@ def _render_piece(walk, ns, st_t, piece, opt, shade, out, acc):
         settle = lo > 1.0 + pad or hi < 1.0 - pad
         if not settle and mono == 0 and width > tol and p + 2 <= MAX_STACK and tm > tcur and tm < te:
             # ambiguous: split at the middle; the right part keeps slot p
-            _, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, tm, kp, scratch, st_f, st_fp, p + 1, *cache)
+            _, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, tm, kp, scratch, st_f, st_fp, p + 1, cache)
             counts[0] += ne
             counts[4] += ne
             st_t[p + 1] = tm

@@ -223,7 +223,7 @@ def _trace_cluster(walk, order, bps, clu, zs, opt, stack, out, tally):
             _, ne = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, cur, 0, mstat, cache)
             fcur = _row_sum(st_f, cur, ns)
         else:
-            fcur, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, st_f, st_fp, cur, *cache)
+            fcur, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, st_f, st_fp, cur, cache)
         nev += ne
         if spans and (fcur >= 1.0) != inside:   # only after a skipped stretch (below the grid): enter here
             nx = _crossing(out[2], nx, ta)
@@ -239,7 +239,7 @@ def _trace_cluster(walk, order, bps, clu, zs, opt, stack, out, tally):
                 j = jj - 1
                 continue
         if not lazy:
-            _, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, st_f, st_fp, 0, *cache)
+            _, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, st_f, st_fp, 0, cache)
             nev += ne
         nrun, nev, nx, inside = _walk_piece(walk, ns, (ta, tb, k0, k1, fcur), zs, opt, stack, out,
                                             (nrun, nev, nx, inside))
@@ -326,7 +326,7 @@ def _walk_piece(walk, ns, piece, zs, opt, stack, out, tally):
                 return -1, nev, nx, inside   # cannot happen for K < 2^70; keep the kernel total anyway
             elif q1 < q0:   # spans: no centre left; refine the crossing(s) to span_tol
                 ts = _span_split(st_f, st_fp, ns, p, (tcur, e_t, fcur, mono), span_tol)
-                _, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, ts, kp, scratch, st_f, st_fp, p + 1, *cache)
+                _, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, ts, kp, scratch, st_f, st_fp, p + 1, cache)
                 nev += ne
                 _push(st_kind, st_t, st_k0, st_k1, p + 1, 0, ts, q0, q1)
                 sp = p + 2
@@ -350,7 +350,7 @@ def _walk_piece(walk, ns, piece, zs, opt, stack, out, tally):
                     inm, ne = split_lazy(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, rows, cur, p, p + 2, mstat,
                                          cache)
                 else:
-                    fm, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, st_f, st_fp, p + 2, *cache)
+                    fm, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, zm, kp, scratch, st_f, st_fp, p + 2, cache)
                     inm = fm >= 1.0
                 nev += ne
                 _push(st_kind, st_t, st_k0, st_k1, p + 1, 1, zm, km, 1 if inm else 0)
