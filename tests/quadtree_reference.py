@@ -11,7 +11,8 @@ import math
 import numpy as np
 
 from slicer._kernels.cellbounds import PIECES, SLACK, disc_bounds, disc_bounds_binned
-from slicer._kernels.cellstate import IN, OUT, SMALL, THIN, crest_candidates, judge_cells, settle_from_parent
+from slicer._kernels.cellstate import (IN, ONEDIR, OUT, SMALL, THIN, clear_cells, corner_candidates, crest_candidates,
+                                       judge_cells, settle_from_parent)
 from slicer._kernels.ridgebounds import ridge_bounds, ridge_bounds_binned
 from slicer.contours.cells import COARSE_PIECES, INHERIT_BELOW, _bin_segments
 from slicer.contours.roots import FIELD_SLACK, _field
@@ -207,6 +208,7 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
                                                         None, values=(taylor[0][again], taylor[1][again]))
                 st_r[again], kap_r[again], slo_r[again] = st2, kap2, slo2
                 taylor = tuple(_put(a, again, b) for a, b in zip(taylor, tay2))
+        st_r, corners = _corner_test(bounds, ix[rest], iy[rest], x0, y0, s, rr, st_r, taylor)
         if lev < levels:
             st_r = _crests(bounds, cx[rest], cy[rest], rr, st_r, taylor)
         kappa[rest], slope[rest] = kap_r, slo_r
@@ -221,6 +223,12 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
         split = ~done
         if unit >= 2:
             known.append((ix[split] * unit + unit // 2, iy[split] * unit + unit // 2, f[split]))
+        # then the corners of the cells that had the corner test, counter-clockwise from (ix, iy)
+        tested = np.flatnonzero(~np.isnan(corners[0]))
+        cxi, cyi = ix[rest[tested]], iy[rest[tested]]
+        kxc = ((cxi[:, None] + np.array([0, 1, 1, 0])) * unit).ravel()
+        kyc = ((cyi[:, None] + np.array([0, 0, 1, 1])) * unit).ravel()
+        known.append((kxc, kyc, corners[:, tested].T.ravel()))
         # split cells were all classified (settled children are leaves): their Taylor data
         ks = np.flatnonzero(~done[rest])
         parent = ((cx[rest[ks]], cy[rest[ks]]), tuple(a[ks] for a in taylor))
@@ -236,6 +244,31 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
     ky = np.concatenate([k[1] for k in known] + [np.zeros(0, np.int64)])
     kf = np.concatenate([k[2] for k in known] + [np.zeros(0)])
     return X0, Y0, X0 + size, Y0 + size, state, kappa, slope, cells, (kx, ky, kf)
+
+
+def _corner_test(bounds: _Bounds, ix: np.ndarray, iy: np.ndarray, x0: float, y0: float, s: float, rr: float,
+                 state: np.ndarray, taylor):
+    """``state`` with the unresolved cells that have one partial derivative
+    proven nonzero (and whose centre's linear model forecasts a pass) made ONEDIR where the field at their four corners proves
+    no cap hides along their edges (:func:`slicer._kernels.cellstate.clear_cells`),
+    and the corner values, (4, c) (NaN where not tested)."""
+    f, g, G, H = taylor[:4]
+    corners = np.full((4, state.size), np.nan)
+    g = np.ascontiguousarray(g)
+    try_ = np.flatnonzero((state < 0) & corner_candidates(f, g, G, H, float(rr), float(s), FIELD_SLACK))
+    if try_.size == 0:
+        return state, corners
+    xa, ya = x0 + ix[try_] * s, y0 + iy[try_] * s
+    xb, yb = x0 + (ix[try_] + 1) * s, y0 + (iy[try_] + 1) * s
+    pts = np.concatenate([np.column_stack([xa, ya]), np.column_stack([xb, ya]), np.column_stack([xb, yb]),
+                          np.column_stack([xa, yb])])
+    vals = _field(bounds.skel, np.column_stack([pts, np.full(pts.shape[0], bounds.z)]))[0].reshape(4, -1)
+    bounds.evaluations += pts.shape[0]
+    corners[:, try_] = vals
+    out = state.copy()
+    ok = clear_cells(np.ascontiguousarray(vals), g[try_], G[try_], H[try_], float(rr), float(s), FIELD_SLACK)
+    out[try_[ok]] = ONEDIR
+    return out, corners
 
 
 def _crests(bounds: _Bounds, cx: np.ndarray, cy: np.ndarray, rr: float, state: np.ndarray, taylor) -> np.ndarray:

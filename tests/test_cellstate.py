@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from slicer._kernels.cellstate import IN, ONEDIR, OUT, SIMPLE, crest_candidates, judge_cells, settle_from_parent
+from slicer._kernels.cellstate import (IN, ONEDIR, OUT, SIMPLE, clear_cells, corner_candidates, corners_clear,
+                                       crest_candidates, edge_clear, judge_cells, settle_from_parent)
 
 SLACK = 1e-9
 
@@ -103,3 +106,100 @@ def test_crest_candidates_match_the_numpy_steps(seed):
     got = crest_candidates(state, f, g, G, H, rr, thin, SLACK, 1e-9)
     assert np.array_equal(got, want)
     assert got.any() and not got.all()
+
+
+# --------------------------------------------------------------------------- the corner test
+# F along an edge of length s with |F''| <= H: a parabola of curvature alpha H plus a sine of
+# curvature at most (1 - |alpha|) H, so every such draw honours the bound the test assumes.
+def _edge_function(p, q, alpha, m, amp, w, phase, H, s):
+    def phi(x):
+        return (p + q * x + 0.5 * alpha * H * (x - m * s) ** 2
+                + amp * (1.0 - abs(alpha)) * H / w ** 2 * np.sin(w * x + phase))
+    return phi
+
+
+def _crossings(values):
+    """Sign changes of ``values >= 1`` along a dense sampling."""
+    inside = values >= 1.0
+    return int(np.count_nonzero(inside[1:] != inside[:-1]))
+
+
+@settings(max_examples=400, deadline=None, derandomize=True)
+@given(st.floats(0.9, 1.1), st.floats(-2.0, 2.0), st.floats(-1.0, 1.0), st.floats(-0.5, 1.5), st.floats(0.0, 1.0),
+       st.floats(5.0, 400.0), st.floats(0.0, 2 * np.pi), st.floats(1.0, 400.0), st.floats(1e-3, 0.1))
+def test_edge_clear_is_sound_on_every_function_within_the_curvature_bound(p, q, alpha, m, amp, w, phase, H, s):
+    phi = _edge_function(p, q, alpha, m, amp, w, phase, H, s)
+    a, b = phi(0.0), phi(s)
+    if edge_clear(a, b, H, s, SLACK):
+        # what the edge's ends say is what happens along it: no crossing, or exactly one
+        assert _crossings(phi(np.linspace(0.0, s, 4001))) == int((a >= 1.0) != (b >= 1.0))
+
+
+def test_edge_clear_refuses_the_largest_cap_its_bound_allows_and_accepts_clear_edges():
+    H, s = 100.0, 0.02
+    bump = H * s * s / 8.0                       # the deepest excursion |F''| <= H allows between the ends
+    # a parabola of curvature -H peaking mid-edge just above 1, both ends below: a hidden cap
+    for top in (1.0 + 1e-6, 1.0 + 0.5 * bump):
+        phi = _edge_function(top, 0.0, -1.0, 0.5, 0.0, 1.0, 0.0, H, s)
+        a, b = phi(0.0), phi(s)
+        assert a < 1.0 and b < 1.0 and _crossings(phi(np.linspace(0.0, s, 4001))) == 2
+        assert not edge_clear(a, b, H, s, SLACK)
+    # the same shape a little lower stays below 1: clear, and so are the mirrored (inside) case
+    # and a steep line across 1
+    assert edge_clear(1.0 - bump - 1e-6, 1.0 - bump - 1e-6, H, s, SLACK)
+    assert edge_clear(1.0 + bump + 1e-6, 1.0 + bump + 1e-6, H, s, SLACK)
+    assert edge_clear(1.0 - 0.6 * H * s * s, 1.0 + 0.6 * H * s * s, H, s, SLACK)
+    # a crossing pair can hide next to a crossing when the ends differ by less than H s^2
+    assert not edge_clear(1.0 - 0.4 * H * s * s, 1.0 + 0.4 * H * s * s, H, s, SLACK)
+    for bad in (np.inf, np.nan):
+        assert not edge_clear(0.5, 0.5, bad, s, SLACK)
+
+
+def test_corners_clear_checks_the_edges_along_the_direction_that_may_not_be_monotone():
+    """F = 1 + g (y - c) + (H/2)(x - s/2)^2 on the cell [0, s]^2: dF/dy = g everywhere
+    (``my``), the left and right edges cross 1 once, and the level set is a parabola
+    that dips an outside region down through the top edge between two top corners
+    that are both inside."""
+    H, g, s = 100.0, 5.0, 0.02
+    bump = H * s * s / 8.0
+    c = s + 0.25 * bump / g                      # the top edge's middle is a quarter bump below 1
+
+    def F(x, y, lift=0.0):
+        return 1.0 + g * (y - c) + 0.5 * H * (x - 0.5 * s) ** 2 + lift
+
+    f00, f10, f11, f01 = F(0, 0), F(s, 0), F(s, s), F(0, s)
+    x = np.linspace(0.0, s, 4001)
+    assert f11 >= 1.0 and f01 >= 1.0 and _crossings(F(x, s)) == 2      # the dip the corners miss
+    assert not corners_clear(f00, f10, f11, f01, False, True, H, s, SLACK)
+    # told (wrongly) that x is the monotone direction, only the vertical edges would be
+    # checked, and they are clear: the direction decides which edges are tested
+    assert _crossings(F(0.0, x)) == 1 and _crossings(F(s, x)) == 1
+    assert corners_clear(f00, f10, f11, f01, True, False, H, s, SLACK)
+    # lifted by two bumps, the top edge lies wholly inside and the cell is clear
+    vals = F(0, 0, 2 * bump), F(s, 0, 2 * bump), F(s, s, 2 * bump), F(0, s, 2 * bump)
+    assert corners_clear(*vals, False, True, H, s, SLACK)
+    assert _crossings(F(x, s, 2 * bump)) == 0 and _crossings(F(x, 0.0, 2 * bump)) == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_corner_candidates_and_clear_cells_are_the_per_cell_tests(seed):
+    f, g, G, H, far, r = random_cells(seed, 2000)
+    rng = np.random.default_rng(seed + 20)
+    rr = 0.01
+    s = rr * np.sqrt(2.0)
+    cand = corner_candidates(f, g, G, H, rr, s, SLACK)
+    corners = np.ascontiguousarray(1.0 + rng.normal(0.0, 0.02, (4, f.size)))
+    clear = clear_cells(corners, g, G, H, rr, s, SLACK)
+    gn = np.hypot(g[:, 0], g[:, 1])
+    with np.errstate(invalid="ignore", over="ignore"):
+        gs = SLACK * (gn + G) + rr * H
+    gs = np.where(np.isnan(gs), np.inf, gs)
+    mx, my = np.abs(g[:, 0]) > gs, np.abs(g[:, 1]) > gs
+    h = 0.5 * s
+    for j in range(f.size):
+        fc = (f[j] - g[j, 0] * h - g[j, 1] * h, f[j] + g[j, 0] * h - g[j, 1] * h,
+              f[j] + g[j, 0] * h + g[j, 1] * h, f[j] - g[j, 0] * h + g[j, 1] * h)
+        want = bool(mx[j] or my[j]) and corners_clear(*fc, mx[j], my[j], H[j], s, 0.0)
+        assert cand[j] == want
+        assert clear[j] == corners_clear(*corners[:, j], mx[j], my[j], H[j], s, SLACK)
+    assert cand.any() and not cand.all() and clear.any() and not clear.all()

@@ -16,6 +16,7 @@ from slicer import Skeleton
 from slicer.cli import main
 from slicer.contours import (iter_contours, layer_contours, layer_mask, mask_rings, rings_to_multipolygon,
                              solve_crossings)
+from slicer.contours.roots import project_to_contour
 from slicer.field import evaluate
 from slicer.slicing import slice_skeleton
 from validation.metrics import polygon_rings, rasterize_rings
@@ -185,6 +186,30 @@ def test_root_solve_with_a_slope_bound_is_within_half_the_tolerance_and_cheaper(
     length = rb - ra
     assert (np.abs(t1 - t_ref) * length <= 0.5 * tol).all()
     assert n1 < n0
+
+
+def test_projection_to_the_contour_lands_on_the_circle_from_the_newton_bracket():
+    """Points near the circle of a vertical strut (the section is a disc): each
+    projection lies on the gradient line (radial) within tol/2 of the circle, and
+    where the Newton point's bracket holds, a point costs three evaluations; far
+    points, whose Newton step overshoots, are still solved on the whole segment."""
+    s = Skeleton([[0, 0, -5], [0, 0, 5]], [[0, 1]], [[1.0, 1.0]])
+    _, t_ref, _, _ = solve_crossings(s, np.array([[0.5, 0, 0]]), np.array([[1.5, 0, 0]]), 1e-13)
+    R = 0.5 + t_ref[0]                                     # the section's radius
+    rng = np.random.default_rng(5)
+    phi = rng.uniform(0, 2 * np.pi, 50)
+    rad = R + rng.uniform(-0.01, 0.01, 50)
+    xy = np.column_stack([rad * np.cos(phi), rad * np.sin(phi)])
+    tol = 1e-3
+    roots, ok, _, evals = project_to_contour(s, xy, 0.0, tol)
+    assert ok.all()
+    assert np.abs(np.hypot(roots[:, 0], roots[:, 1]) - R).max() <= 0.5 * tol
+    assert np.abs(np.arctan2(roots[:, 1], roots[:, 0]) - np.arctan2(xy[:, 1], xy[:, 0])).max() < 1e-9
+    assert evals == 3 * 50
+    far = np.array([[0.7, 0.0], [1.2, 0.0], [0.0, -1.4]])   # a linear model is poor this far out
+    roots, ok, _, evals = project_to_contour(s, far, 0.0, tol)
+    assert ok.all() and np.abs(np.hypot(roots[:, 0], roots[:, 1]) - R).max() <= tol
+    assert evals > 3 * 3                                   # the whole segment was searched
 
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -28,9 +28,7 @@ def _judge_one(f, gx, gy, G, H, r, far, tol, slack):
     gn = math.hypot(gx, gy)
     spread = r * np_minimum(G, gn + 0.5 * r * H)      # NaN compares false, as inf would
     fs = slack * (1.0 + abs(f))
-    gs = slack * (gn + G) + r * H
-    if gs != gs:
-        gs = math.inf
+    gs = _slope_margin(gn, G, H, r, slack)
     state = -1
     if f + spread + fs < 1.0 or far:
         state = OUT
@@ -52,6 +50,61 @@ def _judge_one(f, gx, gy, G, H, r, far, tol, slack):
     sx = sx if math.isfinite(sx) and sx > 0.0 else 0.0
     sy = sy if math.isfinite(sy) and sy > 0.0 else 0.0
     return state, kappa, sx, sy
+
+
+@inline_kernel
+def _slope_margin(gn, G, H, r, slack):
+    """``gs = slack (gn + G) + r H`` (NaN: inf): how far a partial derivative
+    may move from its value at the centre over the disc, evaluation error included."""
+    gs = slack * (gn + G) + r * H
+    if gs != gs:
+        gs = math.inf
+    return gs
+
+
+@inline_kernel
+def monotone_axes(gx, gy, G, H, r, slack):
+    """``(mx, my)``: whether ``∂F/∂x``, resp. ``∂F/∂y``, is proven nonzero over
+    the disc (``|∂F/∂x(c)| > gs``, :func:`judge_cells`)."""
+    gs = _slope_margin(math.hypot(gx, gy), G, H, r, slack)
+    return abs(gx) > gs, abs(gy) > gs
+
+
+@inline_kernel
+def edge_clear(a, b, H, s, slack):
+    """Whether ``F`` crosses 1 along an edge of length ``s`` (mm) exactly as the
+    signs of its end values ``a``, ``b`` say: not at all when both are on one
+    side, once when they differ (docs/math.md §10.2). ``H`` bounds ``|F''|``
+    along the edge (the in-plane Hessian's norm over a disc holding it).
+
+    ``φ(x) = F`` along the edge lies within ``H x (s − x)/2 <= H s²/8`` of the
+    chord between its end values, so both ends at least that far below 1
+    (above 1) leave no crossing; and ``φ'`` is within ``H s`` of the chord's
+    slope ``(b − a)/s`` everywhere, so ``|b − a| > H s²`` makes φ strictly
+    monotone: one crossing. Each end value carries its evaluation error
+    ``slack (1 + |F|)``; the bump gets ``1e-12`` relative for its own rounding
+    (NaN or infinite ``H``: not clear).
+    """
+    ea = slack * (1.0 + abs(a))
+    eb = slack * (1.0 + abs(b))
+    bump = 0.125 * H * s * s * (1.0 + 1e-12)
+    if a < 1.0 and b < 1.0:
+        return max(a + ea, b + eb) + bump < 1.0
+    if a >= 1.0 and b >= 1.0:
+        return min(a - ea, b - eb) - bump > 1.0
+    return abs(b - a) - ea - eb > 8.0 * bump
+
+
+@inline_kernel
+def corners_clear(f00, f10, f11, f01, mx, my, H, s, slack):
+    """Whether a cell with one partial derivative proven nonzero (``mx`` or
+    ``my``, :func:`monotone_axes`) holds no cap its corners cannot see: the
+    edges across the monotone direction are monotone already, and both edges
+    along it are :func:`edge_clear` (corners ``f00, f10, f11, f01``
+    counter-clockwise from ``(x0, y0)``, side ``s``)."""
+    if my and edge_clear(f00, f10, H, s, slack) and edge_clear(f01, f11, H, s, slack):
+        return True
+    return mx and edge_clear(f00, f01, H, s, slack) and edge_clear(f10, f11, H, s, slack)
 
 
 @kernel
@@ -102,6 +155,46 @@ def judge_cells(f, g, G, H, far, r, tol, slack):
         slope[j, 0] = sx
         slope[j, 1] = sy
     return state, kappa, slope
+
+
+@inline_kernel
+def corner_candidate(f, gx, gy, G, H, r, s, slack):
+    """Whether an unresolved cell of side ``s`` is worth the corner test
+    (:func:`corners_clear`, four evaluations): one partial derivative proven
+    nonzero, and the centre's linear model ``f + g·(p − c)`` at the corners
+    passes the test (a forecast, not a proof: it only saves evaluations
+    where the corners would most likely not clear the cell)."""
+    mx, my = monotone_axes(gx, gy, G, H, r, slack)
+    if not (mx or my):
+        return False
+    h = 0.5 * s
+    return corners_clear(f - gx * h - gy * h, f + gx * h - gy * h, f + gx * h + gy * h, f - gx * h + gy * h,
+                         mx, my, H, s, 0.0)
+
+
+@kernel
+def corner_candidates(f, g, G, H, r, s, slack):
+    """:func:`corner_candidate` of cells with the centre's field ``f``,
+    gradient ``g`` (c, 2) and bounds ``G``, ``H``; ``r`` the disc radius and
+    ``s`` the side (mm): (c,) bool."""
+    nc = G.shape[0]
+    out = np.zeros(nc, np.bool_)
+    for j in range(nc):
+        out[j] = corner_candidate(f[j], g[j, 0], g[j, 1], G[j], H[j], r, s, slack)
+    return out
+
+
+@kernel
+def clear_cells(corners, g, G, H, r, s, slack):
+    """:func:`corners_clear` of cells of side ``s`` (mm) with the field at their
+    corners, ``corners`` (4, c) counter-clockwise from the lower left, and their
+    centre's gradient ``g`` (c, 2) and bounds ``G``, ``H``: (c,) bool."""
+    nc = G.shape[0]
+    out = np.zeros(nc, np.bool_)
+    for j in range(nc):
+        mx, my = monotone_axes(g[j, 0], g[j, 1], G[j], H[j], r, slack)
+        out[j] = corners_clear(corners[0, j], corners[1, j], corners[2, j], corners[3, j], mx, my, H[j], s, slack)
+    return out
 
 
 @kernel

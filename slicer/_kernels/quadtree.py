@@ -3,8 +3,10 @@ docs/contours.md step 1).
 
 Level by level, every cell is settled from its parent's Taylor data, or
 classified from its centre's field and gradient and the disc bounds
-(:mod:`slicer._kernels.cellbounds`), or tried as a crest cell
-(:mod:`slicer._kernels.ridgebounds`); cells left unresolved are split. The
+(:mod:`slicer._kernels.cellbounds`), or proven free of hidden caps by the
+field at its corners (one partial derivative nonzero, :func:`corner_test`),
+or tried as a crest cell (:mod:`slicer._kernels.ridgebounds`); cells left
+unresolved are split. The
 cells of a level are independent (``prange``); leaves, known centre values
 and the next level are gathered serially, in cell order. The arithmetic is
 that of the cell-state passes (:mod:`slicer._kernels.cellstate`), operation
@@ -26,7 +28,8 @@ from .._jit import inline_kernel, kernel, parallel_kernel, unrefcounted_kernel
 from .borrow import borrow, keep_alive
 from .brackets import np_maximum, np_minimum
 from .cellbounds import SLACK, _disc, kernel_curvature_max, square_of
-from .cellstate import IN, OUT, SMALL, THIN, _judge_one, crest_candidate, settle_one
+from .cellstate import (IN, ONEDIR, OUT, SMALL, THIN, _judge_one, corner_candidate, corners_clear, crest_candidate,
+                        monotone_axes, settle_one)
 from .field import SCRATCH
 from .points import point_field
 from .raysupport import kprime_max
@@ -99,6 +102,14 @@ def field_at(plane, x, y, scratch):
     z, n, norm, inv_s2 = plane[1][6], plane[1][7], plane[1][9], plane[1][12]
     f, gx, gy, _ = point_field(seg, po, pi, porig, pcell, pdims, n // 2, inv_s2, norm, True, scratch, x, y, z)
     return f, gx, gy
+
+
+@inline_kernel
+def value_at(plane, x, y, scratch):
+    """Field at ``(x, y, z)`` (no gradient)."""
+    seg, _, _, _, po, pi, porig, pcell, pdims = plane[0]
+    z, n, norm, inv_s2 = plane[1][6], plane[1][7], plane[1][9], plane[1][12]
+    return point_field(seg, po, pi, porig, pcell, pdims, n // 2, inv_s2, norm, False, scratch, x, y, z)[0]
 
 
 @inline_kernel
@@ -200,44 +211,74 @@ def classify_at(plane, cx, cy, r, kind, G, H, U, tol, pieces, coarse, fslack, sc
 
 
 @inline_kernel
-def _cell(plane, cx, cy, rr, k, kind, parents, crests, settings, scratch):
+def _cell(plane, cx, cy, rr, box, k, kind, parents, crests, settings, scratch):
     """One cell of :func:`quadtree_level` (parent ``k``; no parents: a root
-    cell): settled from the parent's Taylor data (inlined: most cells end
-    here), or :func:`_classified`.
+    cell; ``box = (xa, ya, xb, yb, s)`` its corners and side): settled from the parent's
+    Taylor data (inlined: most cells end here), or :func:`_classified`.
 
     Returns
     -------
-    state, kappa, sx, sy, f, gx, gy, G, H, U, evaluations
-        (NaN f, zero bounds and no evaluation when settled by the parent.)
+    state, kappa, sx, sy, f, gx, gy, G, H, U, evaluations, corners
+        (NaN f and corners, zero bounds and no evaluation when settled by the parent.)
     """
     pcx, pcy, pf, pgx, pgy, pG, pH, pU = parents
     if pcx.shape[0] == 0:
-        return _classified(plane, cx, cy, rr, ROOT, 0.0, 0.0, 0.0, crests, settings, scratch)
+        return _classified(plane, cx, cy, rr, box, ROOT, 0.0, 0.0, 0.0, crests, settings, scratch)
     st = settle_one(pf[k], pgx[k], pgy[k], pG[k], pH[k], rr, cx - pcx[k], cy - pcy[k], settings[4])
     if st >= 0:
-        return st, np.inf, 0.0, 0.0, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0
-    return _classified(plane, cx, cy, rr, kind, pG[k], pH[k], pU[k], crests, settings, scratch)
+        return st, np.inf, 0.0, 0.0, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0, (np.nan, np.nan, np.nan, np.nan)
+    return _classified(plane, cx, cy, rr, box, kind, pG[k], pH[k], pU[k], crests, settings, scratch)
 
 
 @unrefcounted_kernel
-def _classified(plane, cx, cy, rr, kind, G, H, U, crests, settings, scratch):
+def _classified(plane, cx, cy, rr, box, kind, G, H, U, crests, settings, scratch):
     """A cell its parent did not settle: classified (:func:`classify_at`,
-    ``G, H, U`` the parent's bounds) and, where ``crests`` and it may hold a
-    critical point, tried as a crest cell (:func:`ridge_at`). A call, not
-    inlined: it is long, and each cell that gets here costs far more than
-    the call (the plane's arrays are borrowed: no reference counting).
+    ``G, H, U`` the parent's bounds); if left unresolved with one partial
+    derivative proven nonzero, its corners may prove it cap-free
+    (:func:`corner_test`, tried where the centre's linear model forecasts
+    it, :func:`slicer._kernels.cellstate.corner_candidate`); otherwise, where ``crests`` and it may hold a
+    critical point, it is tried as a crest cell (:func:`ridge_at`). A call,
+    not inlined: it is long, and each cell that gets here costs far more
+    than the call (the plane's arrays are borrowed: no reference counting).
 
     Returns
     -------
-    state, kappa, sx, sy, f, gx, gy, G, H, U, evaluations
+    state, kappa, sx, sy, f, gx, gy, G, H, U, evaluations, corners
+        ``corners``: the field at the cell's corners counter-clockwise from
+        ``(xa, ya)`` where the corner test ran, else NaN.
     """
     tol, thin, pieces, coarse, fslack, bslack = settings
     st, kp, ax, ay, f, gx, gy, G, H, U, ev = classify_at(plane, cx, cy, rr, kind, G, H, U, tol, pieces, coarse,
                                                            fslack, scratch)
+    corners = (np.nan, np.nan, np.nan, np.nan)
+    if st < 0 and corner_candidate(f, gx, gy, G, H, rr, box[4], fslack):
+        st, corners = corner_test(plane, box, gx, gy, G, H, rr, fslack, scratch)
+        ev += 4
     if crests and st < 0 and crest_candidate(f, gx, gy, G, H, rr, thin, fslack, bslack):
         st, e2 = ridge_at(plane, cx, cy, rr, f, gx, gy, G, thin ** 2, fslack, scratch)
         ev += e2
-    return st, kp, ax, ay, f, gx, gy, G, H, U, ev
+    return st, kp, ax, ay, f, gx, gy, G, H, U, ev, corners
+
+
+@inline_kernel
+def corner_test(plane, box, gx, gy, G, H, rr, fslack, scratch):
+    """ONEDIR or -1 of a cell with one partial derivative proven nonzero
+    (centre gradient ``gx, gy``, bounds ``G, H``, disc radius ``rr``), from
+    the field at its corners (:func:`slicer._kernels.cellstate.corners_clear`,
+    docs/math.md §10.2), and those four values.
+
+    Returns
+    -------
+    state, (f00, f10, f11, f01)
+    """
+    xa, ya, xb, yb, s = box
+    mx, my = monotone_axes(gx, gy, G, H, rr, fslack)
+    f00 = value_at(plane, xa, ya, scratch)
+    f10 = value_at(plane, xb, ya, scratch)
+    f11 = value_at(plane, xb, yb, scratch)
+    f01 = value_at(plane, xa, yb, scratch)
+    st = ONEDIR if corners_clear(f00, f10, f11, f01, mx, my, H, s, fslack) else -1
+    return st, (f00, f10, f11, f01)
 
 
 @kernel
@@ -257,11 +298,14 @@ def _cells_into(plane, level, parents, settings, out, j0, j1, scratch):
     for j in range(j0, j1):
         cx = x0 + (ix[j] + 0.5) * s
         cy = y0 + (iy[j] + 0.5) * s
-        st, kp, ax, ay, f, gx, gy, G, H, U, ev = _cell(plane, cx, cy, rr, j // 4, kind, parents, crests, settings,
-                                                       scratch)
+        # the corners as the leaf walks place them: x0 + (lattice index) h, h = s / unit (exact)
+        box = (x0 + ix[j] * s, y0 + iy[j] * s, x0 + (ix[j] + 1) * s, y0 + (iy[j] + 1) * s, s)
+        st, kp, ax, ay, f, gx, gy, G, H, U, ev, cv = _cell(plane, cx, cy, rr, box, j // 4, kind, parents, crests,
+                                                           settings, scratch)
         state[j], kappa[j], sx[j], sy[j], evals[j] = st, kp, ax, ay, ev
         tay[0, j], tay[1, j], tay[2, j], tay[3, j] = cx, cy, f, gx
         tay[4, j], tay[5, j], tay[6, j], tay[7, j] = gy, G, H, U
+        tay[8, j], tay[9, j], tay[10, j], tay[11, j] = cv
 
 
 @parallel_kernel
@@ -285,14 +329,15 @@ def quadtree_level(plane, ix, iy, x0, y0, s, rr, kind, parents, crests, settings
     -------
     state : (c,) int8
     kappa, sx, sy : (c,) float64
-    taylor : (8, c) float64
+    taylor : (12, c) float64
         ``cx, cy, f, gx, gy, G, H, U`` of each cell (NaN f where settled by
-        the parent).
+        the parent), then the field at its corners where the corner test
+        ran (:func:`corner_test`), else NaN.
     evaluations : int
     """
     nc = ix.shape[0]
     state, kappa, sx, sy = np.empty(nc, np.int8), np.empty(nc), np.empty(nc), np.empty(nc)
-    tay, evals = np.empty((8, nc)), np.zeros(nc, np.int64)
+    tay, evals = np.empty((12, nc)), np.zeros(nc, np.int64)
     # a parfor cannot take a tuple of arrays: the tuples are rebuilt in each task
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = plane[0]
     consts = plane[1]
@@ -319,8 +364,9 @@ def _grow(a, need):
 def _gather(ix, iy, lev, levels, level, leaves, nl, known, nk):
     """Append the leaves of one level (cells with a state; at the finest
     level the unresolved ones become SMALL) to ``leaves``, the centre values
-    of its split cells to ``known``, and make the next level: four children
-    per split cell, in order, with their parent's Taylor data.
+    of its split cells and then the corner values of its cells that had the
+    corner test to ``known``, and make the next level: four children per
+    split cell, in order, with their parent's Taylor data.
 
     Parameters
     ----------
@@ -341,17 +387,20 @@ def _gather(ix, iy, lev, levels, level, leaves, nl, known, nk):
     nc = ix.shape[0]
     unit = 1 << (levels - lev)
     nsplit = 0
+    ncorner = 0
     for j in range(nc):
         if state[j] < 0 and lev == levels:
             state[j] = SMALL
         if state[j] < 0:
             nsplit += 1
+        if tay[8, j] == tay[8, j]:
+            ncorner += 1
     LX, LY, LS, LST, LK, LSX, LSY = leaves
     LX, LY, LS, LST = _grow(LX, nl + nc), _grow(LY, nl + nc), _grow(LS, nl + nc), _grow(LST, nl + nc)
     LK, LSX, LSY = _grow(LK, nl + nc), _grow(LSX, nl + nc), _grow(LSY, nl + nc)
     KX, KY, KF = known
-    if unit >= 2:
-        KX, KY, KF = _grow(KX, nk + nsplit), _grow(KY, nk + nsplit), _grow(KF, nk + nsplit)
+    need = nk + nsplit + 4 * ncorner
+    KX, KY, KF = _grow(KX, need), _grow(KY, need), _grow(KF, need)
     nix = np.empty(4 * nsplit, np.int64)
     niy = np.empty(4 * nsplit, np.int64)
     par = np.empty((8, nsplit))
@@ -365,11 +414,18 @@ def _gather(ix, iy, lev, levels, level, leaves, nl, known, nk):
         if unit >= 2:
             KX[nk], KY[nk], KF[nk] = ix[j] * unit + unit // 2, iy[j] * unit + unit // 2, tay[2, j]
             nk += 1
-        par[:, q] = tay[:, j]
+        par[:, q] = tay[:8, j]
         for c in range(4):
             nix[4 * q + c] = 2 * ix[j] + (c & 1)
             niy[4 * q + c] = 2 * iy[j] + (c >> 1)
         q += 1
+    for j in range(nc):
+        if tay[8, j] == tay[8, j]:
+            for c in range(4):          # counter-clockwise from (ix, iy), as corner_test evaluated them
+                KX[nk] = (ix[j] + (1 if c == 1 or c == 2 else 0)) * unit
+                KY[nk] = (iy[j] + (c >> 1)) * unit
+                KF[nk] = tay[8 + c, j]
+                nk += 1
     parents = (par[0], par[1], par[2], par[3], par[4], par[5], par[6], par[7])
     return nix, niy, parents, (LX, LY, LS, LST, LK, LSX, LSY), nl, (KX, KY, KF), nk
 

@@ -172,6 +172,11 @@ def project_to_contour(skel: Skeleton, xy: np.ndarray, z: float, tol: float, rea
     ``reach``) and solved to ``tol``. ``|xy - root|`` is then an upper bound (to
     ``tol``) of the in-plane distance of ``xy`` to the contour.
 
+    The Newton point ``xy + (1 − F) n / |∇F|`` is tried first: where the
+    segment of length ``tol`` centred on it, on that line and within ``r`` of
+    ``xy``, brackets the root (two evaluations), its midpoint is within
+    ``tol / 2`` of the root; only the others are solved on the whole segment.
+
     Parameters
     ----------
     skel : Skeleton
@@ -205,6 +210,17 @@ def project_to_contour(skel: Skeleton, xy: np.ndarray, z: float, tol: float, rea
     ok = np.zeros(n, bool)
     evals = n
     idx = np.flatnonzero(usable & (r > 0))
+    # the Newton point, bracketed tol/2 either side (within the search segment)
+    near = idx[dist[idx] + 0.5 * tol <= r[idx]]
+    if near.size:
+        step = ((1.0 - f[near]) / gn[near])[:, None] * nrm[near]
+        half = 0.4999 * tol * nrm[near]          # a bracket just under tol: its midpoint, no iteration
+        pts, _, br, ne = solve_crossings(skel, np.column_stack([xy[near] + step + half, zz[near]]),
+                                         np.column_stack([xy[near] + step - half, zz[near]]), tol)
+        evals += ne
+        roots[near[br]] = pts[br, :2]
+        ok[near[br]] = True
+        idx = np.setdiff1d(idx, near[br], assume_unique=True)
     if idx.size:
         pts, _, br, ne = solve_crossings(skel, A[idx], B[idx], tol)
         evals += ne
