@@ -9,9 +9,17 @@ itself survives a power cut. A killed run therefore never leaves a
 half-written output at the target; at most a hidden temporary beside it,
 which :meth:`AtomicFile.discard` / :meth:`AtomicDir.discard` remove on any
 error or interrupt.
+
+A folder's files are made durable together when it is published
+(:func:`sync_files`): one writeback of the file system, then an fsync of
+each file, which reports any write error of that file. An fsync per file
+as it is written costs a journal commit each (about 0.35 ms: 0.35 s for a
+stack of 1,000 layers); after the writeback the fsyncs find nothing left
+to write.
 """
 from __future__ import annotations
 
+import ctypes
 import os
 import shutil
 import tempfile
@@ -43,6 +51,48 @@ def fsync_dir(folder: Path) -> None:
         pass
     finally:
         os.close(fd)
+
+
+def _libc_syncfs():
+    """Linux ``syncfs(2)`` from the C library, or None where there is none."""
+    try:
+        return ctypes.CDLL(None, use_errno=True).syncfs
+    except (OSError, AttributeError, TypeError):  # pragma: no cover - not Linux/glibc
+        return None
+
+
+_SYNCFS = _libc_syncfs()
+
+
+def sync_files(folder: Path, names) -> None:
+    """Make the files ``names`` of ``folder`` durable, and report their write errors.
+
+    Where the C library has ``syncfs`` (Linux), the file system holding
+    ``folder`` is written back at once first; each file is then fsynced,
+    which returns its own write error if its writeback failed (and is then
+    quick: its data is already on disk). Elsewhere the fsyncs do the work.
+
+    Raises
+    ------
+    OSError
+        A file cannot be opened or fsynced.
+    """
+    if _SYNCFS is not None:
+        try:
+            fd = os.open(folder, os.O_RDONLY)
+        except OSError:  # pragma: no cover - platforms without folder fds
+            fd = -1
+        if fd >= 0:
+            try:
+                _SYNCFS(fd)                  # a speed-up only: the fsyncs below are the guarantee
+            finally:
+                os.close(fd)
+    for name in names:
+        fd = os.open(folder / name, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def check_destination(path, force: bool) -> None:
@@ -164,8 +214,9 @@ class AtomicFile:
 class AtomicDir:
     """A temporary folder beside ``path`` that becomes ``path`` on :meth:`publish`.
 
-    Files are added with :meth:`write_file` (written and fsynced); until
-    :meth:`publish` nothing exists at ``path``.
+    Files are added with :meth:`write_file`; :meth:`publish` makes them all
+    durable (:func:`sync_files`) and renames the folder. Until then nothing
+    exists at ``path``.
     """
 
     def __init__(self, path):
@@ -176,9 +227,10 @@ class AtomicDir:
             raise OutputError(f"{self.path}: cannot create a temporary folder ({exc.strerror})") from None
         os.chmod(self.tmp, _umask_mode(0o777))
         self._done = False
+        self._names: dict[str, None] = {}
 
     def write_file(self, name: str, data: bytes) -> None:
-        """Write ``data`` to the folder's file ``name`` and fsync it.
+        """Write ``data`` to the folder's file ``name`` (made durable by :meth:`publish`).
 
         Raises
         ------
@@ -188,22 +240,25 @@ class AtomicDir:
         try:
             with open(self.tmp / name, "wb") as fh:
                 fh.write(data)
-                fh.flush()
-                os.fsync(fh.fileno())
+            self._names[name] = None
         except OSError as exc:
             self.discard()
             raise OutputError(f"{self.path}: cannot write {name} ({exc.strerror or exc})") from None
 
     def publish(self, force: bool) -> None:
-        """fsync the folder and rename it over ``path``; idempotent.
+        """Make its files durable (:func:`sync_files`), fsync the folder and
+        rename it over ``path``; idempotent.
 
         Raises
         ------
         OutputError
+            A file could not be made durable, or the rename failed (the
+            folder is discarded).
         """
         if self._done:
             return
         try:
+            sync_files(self.tmp, self._names)
             fsync_dir(self.tmp)
             _replace(self.tmp, self.path, force)
         except BaseException as exc:
@@ -244,4 +299,4 @@ def write_bytes(path, data: bytes, force: bool = False) -> None:
         out.publish(force)
 
 
-__all__ = ["AtomicFile", "AtomicDir", "write_bytes", "check_destination", "fsync_dir"]
+__all__ = ["AtomicFile", "AtomicDir", "write_bytes", "check_destination", "fsync_dir", "sync_files"]

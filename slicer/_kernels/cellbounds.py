@@ -26,9 +26,12 @@ import numpy as np
 from numba import prange
 
 from .._jit import inline_kernel, parallel_kernel, unrefcounted_kernel
-from .borrow import borrow
+from .borrow import borrow, keep_alive
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 from .raysupport import kprime_max
+
+#: discs per task of :func:`disc_bounds_binned` (each task owns one work area)
+CHUNK = 64
 
 #: relative slack on every computed bound (rounding of a few dozen operations is ~1e-15)
 SLACK = 1e-9
@@ -147,8 +150,22 @@ def _second_sup(ulo, uhi, m):
     return 2.0 * (m - 1.0) * u * _ipow(1.0 - u, m - 2)
 
 
+#: rows of a disc's work area (:func:`_piece_bounds`), each ``pieces + 1`` long:
+#: the pieces' ends (arc length, squared in-plane and full distance from the
+#: centre, 1/radius), then per piece whether it acts and its seven terms
+_T, _QI, _DI, _IT, _ON, _G, _H, _F, _BH, _BL, _A, _AP = range(12)
+_ROWS = 12
+
+
+@inline_kernel
+def disc_work(pieces):
+    """Length of the float64 work area :func:`_disc` needs for reach
+    intervals cut into at most ``pieces`` pieces."""
+    return _ROWS * (max(pieces, 1) + 1)
+
+
 @unrefcounted_kernel
-def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces):
+def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces, work):
     """Slope, curvature and value bounds of segment ``i`` over the disc, from the
     axis points ``t`` in ``[ta, tb]``, split into ``pieces`` pieces: on a piece,
     ``dist(c, piece) − r <= ‖p − q‖ <= max(‖c − q(t0)‖, ‖c − q(t1)‖) + r``,
@@ -156,8 +173,13 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces)
     ``e = (p − q)/‖p − q‖`` is at most ``pe = (max |P(c − q)| + r)/(dist − r)``.
     Pieces whose nearest point is beyond the support (``s_lo >= sigma``) add
     nothing. Neighbouring pieces share their end ``ta + j (tb − ta)/pieces``,
-    its distances from ``c`` and its radius: a piece costs two divisions (by
-    its end's radius and by ``dist − r``) and two or three square roots.
+    its distances from ``c`` and its radius.
+
+    Three passes over ``work`` (at least :func:`disc_work` ``(pieces)``
+    float64): the ends, then every piece's terms (both without a dependence
+    from one piece to the next, so the compiler runs them on vector lanes),
+    then the sums in piece order, so the bounds are those of one loop over
+    the pieces to the bit.
 
     Returns ``g`` (in-plane slope), ``h`` (the integrand's Hessian norm),
     ``f`` (value), and the three sums of the split Hessian (docs/math.md §10):
@@ -172,42 +194,78 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces)
     uy = seg[i, UY]
     uz = seg[i, UZ]
     wu = wx * ux + wy * uy + wz * uz
-    tau0 = seg[i, TAU0]
-    d = seg[i, DELTA]
+    # distance of c from the axis line: every p of the disc is within it + r
+    rho = math.sqrt(max(wx * wx + wy * wy + wz * wz - wu * wu, 0.0)) * (1.0 + SLACK) + r
+    st = pieces + 1
+    rows = (work[_T * st:(_T + 1) * st], work[_QI * st:(_QI + 1) * st], work[_DI * st:(_DI + 1) * st],
+            work[_IT * st:(_IT + 1) * st])
+    if not _piece_ends(rows, wx, wy, wz, ux, uy, uz, seg[i, TAU0], seg[i, DELTA], ta, tb, pieces):
+        return np.inf, np.inf, np.inf, np.inf, 0.0, np.inf, np.inf
+    terms = (work[_ON * st:(_ON + 1) * st], work[_G * st:(_G + 1) * st], work[_H * st:(_H + 1) * st],
+             work[_F * st:(_F + 1) * st], work[_BH * st:(_BH + 1) * st], work[_BL * st:(_BL + 1) * st],
+             work[_A * st:(_A + 1) * st], work[_AP * st:(_AP + 1) * st])
+    # the distance from c to the axis point nearest it (used by the piece holding it)
+    dfoot = math.sqrt(_end_distances(wx, wy, wz, ux, uy, uz, wu)[1])
+    geo = (wu, rho, dfoot, r)
+    if n == 6:      # the default kernel: the powers unroll, the piece loop runs on vector lanes
+        _piece_terms(rows, terms, geo, pieces, 6, sigma, norm, k1, k2)
+    else:
+        _piece_terms(rows, terms, geo, pieces, n, sigma, norm, k1, k2)
+    return _piece_sums(terms, pieces, n // 2)
+
+
+@inline_kernel
+def _piece_ends(rows, wx, wy, wz, ux, uy, uz, tau0, d, ta, tb, pieces):
+    """Fill ``rows = (t, q, D, 1/tau)`` at the ``pieces + 1`` ends of the
+    pieces of ``[ta, tb]`` (``q``, ``D``: squared in-plane and full distance
+    from ``c``, ``w = c − a``); False if a piece starts at a radius that is
+    not positive (no bound)."""
+    T, Qi, Di, IT = rows
+    step = (tb - ta) / pieces
+    for j in range(pieces + 1):
+        t = ta + j * step if j < pieces else tb
+        q, Q = _end_distances(wx, wy, wz, ux, uy, uz, t)
+        T[j] = t
+        Qi[j] = q
+        Di[j] = math.sqrt(Q)
+        IT[j] = 1.0 / (tau0 + d * t)
+    for j in range(pieces):
+        if not tau0 + d * T[j] > 0.0:
+            return False
+    return True
+
+
+@inline_kernel
+def _piece_terms(rows, terms, geo, pieces, n, sigma, norm, k1, k2):
+    """Each piece's terms of :func:`_piece_bounds` into ``terms = (on, g, h,
+    f, bh, bl, a, ap)`` (``on``: 1 where the piece acts, else 0 and its
+    terms unused), from its ends ``rows`` and ``geo = (wu, rho, dfoot, r)``:
+    the foot's arc length, the disc's reach from the axis line, the
+    distance from ``c`` to the foot, the disc radius."""
+    T, Qi, Di, IT = rows
+    ON, TG, TH, TF, TBH, TBL, TA, TAP = terms
+    wu, rho, dfoot, r = geo
     m = n // 2
     inv_s2 = 1.0 / (sigma * sigma)
     cn = norm * n * inv_s2
-    step = (tb - ta) / pieces
-    g = h = f = bh = bl = a = ap = 0.0
-    # distance of c from the axis line: every p of the disc is within it + r
-    rho = math.sqrt(max(wx * wx + wy * wy + wz * wz - wu * wu, 0.0)) * (1.0 + SLACK) + r
-    # squared in-plane distance and distance of c from the piece's start (the previous piece's end)
-    q0, Q0 = _end_distances(wx, wy, wz, ux, uy, uz, ta)
-    D0 = math.sqrt(Q0)
-    ita = 1.0 / (tau0 + d * ta)         # 1 / radius at the piece's start
     for j in range(pieces):
-        t0 = ta + j * step
-        t1 = tb if j == pieces - 1 else ta + (j + 1) * step
-        tau_lo = tau0 + d * t0
-        tau_hi = tau0 + d * t1
-        if not tau_lo > 0.0:
-            return np.inf, np.inf, np.inf, np.inf, 0.0, np.inf, np.inf
-        q1, D1, dist = _piece_reach(wx, wy, wz, ux, uy, uz, wu, t0, t1, D0)
+        t0 = T[j]
+        t1 = T[j + 1]
+        D0 = Di[j]
+        D1 = Di[j + 1]
+        # distance to the piece: to the foot when it lies on the piece, else to the nearer end
+        dist = D0 if wu <= t0 else (D1 if wu >= t1 else dfoot)
         dmax = max(D0, D1)
-        qmax = max(q0, q1)
-        q0, D0 = q1, D1
+        qmax = max(Qi[j], Qi[j + 1])
         dlo = dist * (1.0 - SLACK) - r
-        it = ita
-        ith = 1.0 / tau_hi
-        ita = ith
+        it = IT[j]
+        ith = IT[j + 1]
         s_lo = max(dlo, 0.0) * ith * (1.0 - SLACK)
-        if s_lo >= sigma:
-            continue
-        pe = pp = 1.0
-        if dlo > 0.0:
-            idl = 1.0 / dlo
-            pe = min(1.0, (math.sqrt(qmax) * (1.0 + SLACK) + r) * idl)
-            pp = min(1.0, rho * idl)
+        ON[j] = 0.0 if s_lo >= sigma else 1.0
+        pos = dlo > 0.0
+        idl = 1.0 / dlo
+        pe = min(1.0, (math.sqrt(qmax) * (1.0 + SLACK) + r) * idl) if pos else 1.0
+        pp = min(1.0, rho * idl) if pos else 1.0
         s_hi = (dmax * (1.0 + SLACK) + r) * it * (1.0 + SLACK)
         ln = t1 - t0
         it3 = it * it * it
@@ -215,41 +273,36 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces)
         u_lo = s_lo * s_lo * inv_s2
         w = 1.0 - u_lo
         w1 = _ipow(w, m - 1)
-        g += ln * pe * _slope_sup(s_lo, w1, n, sigma, cn, k1) * it * it
-        h += ln * _curvature_sup(u_lo, w1, m, cn, k2) * it3
-        f += ln * norm * w1 * w * it
+        TG[j] = ln * pe * _slope_sup(s_lo, w1, n, sigma, cn, k1) * it * it
+        TH[j] = ln * _curvature_sup(u_lo, w1, m, cn, k2) * it3
+        TF[j] = ln * norm * w1 * w * it
         if m >= 2:
             u_hi = min(s_hi * s_hi * inv_s2, 1.0)
-            bh += ln * cn * w1 * it3
-            bl += ln * cn * _ipow(1.0 - u_hi, m - 1) * (ith * ith * ith)
+            TBH[j] = ln * cn * w1 * it3
+            TBL[j] = ln * cn * _ipow(1.0 - u_hi, m - 1) * (ith * ith * ith)
             sec = ln * cn * _second_sup(u_lo, u_hi, m) * it3
-            a += sec * pe * pe
-            ap += sec * pp * pp
-    if m < 2:
-        bh = np.inf
-    return g, h, f, bh, bl, a, ap
+            TA[j] = sec * pe * pe
+            TAP[j] = sec * pp * pp
 
 
 @inline_kernel
-def _piece_reach(wx, wy, wz, ux, uy, uz, wu, t0, t1, D0):
-    """Distances from ``c`` (``w = c − a``, foot at arc length ``wu``) to the axis
-    piece ``[t0, t1]``, given ``D0``, its distance to ``q(t0)``.
-
-    Returns
-    -------
-    q1, D1 : float
-        Squared in-plane distance and distance to ``q(t1)``.
-    dist : float
-        Distance to the piece: to the foot when it lies on the piece, else to
-        the nearer end (the distance is convex in t).
-    """
-    q1, Q1 = _end_distances(wx, wy, wz, ux, uy, uz, t1)
-    D1 = math.sqrt(Q1)
-    if wu <= t0:
-        return q1, D1, D0
-    if wu >= t1:
-        return q1, D1, D1
-    return q1, D1, math.sqrt(_end_distances(wx, wy, wz, ux, uy, uz, wu)[1])
+def _piece_sums(terms, pieces, m):
+    """The sums of :func:`_piece_bounds` over the acting pieces, in piece order."""
+    ON, TG, TH, TF, TBH, TBL, TA, TAP = terms
+    g = h = f = bh = bl = a = ap = 0.0
+    for j in range(pieces):
+        if ON[j] != 0.0:
+            g += TG[j]
+            h += TH[j]
+            f += TF[j]
+            if m >= 2:
+                bh += TBH[j]
+                bl += TBL[j]
+                a += TA[j]
+                ap += TAP[j]
+    if m < 2:
+        bh = np.inf
+    return g, h, f, bh, bl, a, ap
 
 
 @inline_kernel
@@ -288,9 +341,10 @@ GOLDEN = 1.6180339887498950
 
 
 @unrefcounted_kernel
-def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces):
+def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, work):
     """:func:`disc_bounds` of one disc from the segments ``lst[a:b]`` (in that
-    order; those whose support cannot reach the disc add nothing).
+    order; those whose support cannot reach the disc add nothing), with the
+    work area ``work`` (at least :func:`disc_work` ``(pieces)`` float64).
 
     Returns
     -------
@@ -308,7 +362,8 @@ def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces):
         if not tb > ta:
             continue
         k = piece_count(ta, tb, r, pieces)
-        gi, hi, ui, bhi, bli, ai, api = _piece_bounds(seg, i, cx, cy, z, r, ta, tb, n, sigma, norm, k1, k2, k)
+        gi, hi, ui, bhi, bli, ai, api = _piece_bounds(seg, i, cx, cy, z, r, ta, tb, n, sigma, norm, k1, k2, k,
+                                                       work)
         g += gi
         h += hi
         u += ui
@@ -398,8 +453,13 @@ def disc_bounds_binned(seg, squares, cx, cy, z, r, n, sigma, norm, pieces=PIECES
     G = np.zeros(nc)
     H = np.zeros(nc)
     U = np.zeros(nc)
-    for j in prange(nc):
-        c = square_of(cx[j], cy[j], x0, y0, side, nx, ny)
-        G[j], H[j], U[j] = _disc(seg, bins, offsets[c], offsets[c + 1], cx[j], cy[j], z, r[j], n, sigma, norm,
-                                 k1, k2, pieces)
+    nw = disc_work(pieces)
+    for ch in prange((nc + CHUNK - 1) // CHUNK):
+        own = np.empty(nw)
+        work = borrow(own)
+        for j in range(ch * CHUNK, min(nc, (ch + 1) * CHUNK)):
+            c = square_of(cx[j], cy[j], x0, y0, side, nx, ny)
+            G[j], H[j], U[j] = _disc(seg, bins, offsets[c], offsets[c + 1], cx[j], cy[j], z, r[j], n, sigma, norm,
+                                     k1, k2, pieces, work)
+        keep_alive((own,))
     return G, H, U

@@ -27,13 +27,13 @@ from numba import prange
 from .._jit import inline_kernel, kernel, parallel_kernel, unrefcounted_kernel
 from .borrow import borrow, keep_alive
 from .brackets import np_maximum, np_minimum
-from .cellbounds import SLACK, _disc, kernel_curvature_max, square_of
+from .cellbounds import SLACK, _disc, disc_work, kernel_curvature_max, square_of
 from .cellstate import (IN, ONEDIR, OUT, SMALL, THIN, _judge_one, corner_candidate, corners_clear, crest_candidate,
                         monotone_axes, settle_one)
 from .field import SCRATCH
 from .points import point_field
 from .raysupport import kprime_max
-from .ridgebounds import _frame_disc
+from .ridgebounds import FRAME_WORK, _frame_disc
 
 #: cells per task of a level's ``prange`` (each task owns one field scratch array)
 CHUNK = 64
@@ -70,6 +70,15 @@ def plane_data(seg, bins, ids, pgrid, z, n, sigma, norm):
 
 
 @inline_kernel
+def cell_scratch(pieces, coarse):
+    """Length of a cell's work array: the field's scratch
+    (:data:`slicer._kernels.field.SCRATCH`), then the disc bounds' work area
+    for ``pieces`` or ``coarse`` pieces (:func:`slicer._kernels.cellbounds.disc_work`)
+    or the crest bounds' (:data:`slicer._kernels.ridgebounds.FRAME_WORK`), the larger."""
+    return SCRATCH + max(disc_work(max(pieces, coarse)), FRAME_WORK)
+
+
+@inline_kernel
 def _bin_of(plane, cx, cy, r):
     """``(list, a, b)``: the segments that can reach the disc, ``list[a:b]``."""
     (_, offsets, lists, ids, _, _, _, _, _), (x0, y0, side, nx, ny, rmax) = plane[0], plane[1][:6]
@@ -80,19 +89,21 @@ def _bin_of(plane, cx, cy, r):
 
 
 @inline_kernel
-def disc_at(plane, cx, cy, r, pieces):
-    """``G, H, U`` of one disc (:func:`slicer._kernels.cellbounds.disc_bounds`)."""
+def disc_at(plane, cx, cy, r, pieces, scratch):
+    """``G, H, U`` of one disc (:func:`slicer._kernels.cellbounds.disc_bounds`);
+    ``scratch`` (:func:`cell_scratch`) lends its disc work area."""
     lst, a, b = _bin_of(plane, cx, cy, r)
     z, n, sigma, norm, k1, k2 = plane[1][6:12]
-    return _disc(plane[0][0], lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces)
+    return _disc(plane[0][0], lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, scratch[SCRATCH:])
 
 
 @inline_kernel
-def frame_at(plane, cx, cy, r):
-    """``ux, uy, FVV, FUU, FUV`` of one disc (:func:`slicer._kernels.ridgebounds.ridge_bounds`)."""
+def frame_at(plane, cx, cy, r, scratch):
+    """``ux, uy, FVV, FUU, FUV`` of one disc (:func:`slicer._kernels.ridgebounds.ridge_bounds`);
+    ``scratch`` (:func:`cell_scratch`) lends its disc work area."""
     lst, a, b = _bin_of(plane, cx, cy, r)
     z, n, sigma, norm, k1 = plane[1][6:11]
-    return _frame_disc(plane[0][0], lst, a, b, cx, cy, z, r, n, sigma, norm, k1)
+    return _frame_disc(plane[0][0], lst, a, b, cx, cy, z, r, n, sigma, norm, k1, scratch[SCRATCH:])
 
 
 @inline_kernel
@@ -156,7 +167,7 @@ def ridge_at(plane, cx, cy, r, f0, gx0, gy0, G, thin2, fslack, scratch):
     -------
     state, evaluations
     """
-    ux, uy, vv, uu, uv = frame_at(plane, cx, cy, r)
+    ux, uy, vv, uu, uv = frame_at(plane, cx, cy, r, scratch)
     if not -vv > 0.0:
         return -1, 0
     curv = -vv
@@ -200,12 +211,12 @@ def classify_at(plane, cx, cy, r, kind, G, H, U, tol, pieces, coarse, fslack, sc
     state, kappa, sx, sy, f, gx, gy, G, H, U, evaluations
     """
     if kind == ROOT:
-        G, H, U = disc_at(plane, cx, cy, r, coarse)
+        G, H, U = disc_at(plane, cx, cy, r, coarse, scratch)
     st, kp, sx, sy, f, gx, gy, ev = judge_at(plane, cx, cy, r, G, H, U, False, 0.0, 0.0, 0.0, tol, fslack,
                                              scratch)
     again = (st != IN and st != OUT) if kind == ROOT else (kind == OWN and st < 0)
     if again:
-        G, H, U = disc_at(plane, cx, cy, r, pieces)
+        G, H, U = disc_at(plane, cx, cy, r, pieces, scratch)
         st, kp, sx, sy, f, gx, gy, _ = judge_at(plane, cx, cy, r, G, H, U, True, f, gx, gy, tol, fslack, scratch)
     return st, kp, sx, sy, f, gx, gy, G, H, U, ev
 
@@ -285,8 +296,8 @@ def corner_test(plane, box, gx, gy, G, H, rr, fslack, scratch):
 def _level_cells(plane, level, parents, settings, out, j0, j1):
     """Cells ``j0:j1`` of :func:`quadtree_level` into ``out = (state, kappa,
     sx, sy, taylor, evaluations)``, ``level = (ix, iy, x0, y0, s, rr, kind,
-    crests)``, with one work array."""
-    _cells_into(plane, level, parents, settings, out, j0, j1, np.empty(SCRATCH))
+    crests)``, with one work array (:func:`cell_scratch`)."""
+    _cells_into(plane, level, parents, settings, out, j0, j1, np.empty(cell_scratch(settings[2], settings[3])))
 
 
 @unrefcounted_kernel
@@ -499,8 +510,9 @@ def classify_cells(plane, cx, cy, r, settings):
     evals = np.zeros(nc, np.int64)
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = borrow(plane[0])
     consts = plane[1]
+    nw = cell_scratch(pieces, coarse)
     for ch in prange((nc + CHUNK - 1) // CHUNK):
-        own = np.empty(SCRATCH)
+        own = np.empty(nw)
         scratch = borrow(own)
         plane = ((a0, a1, a2, a3, a4, a5, a6, a7, a8), consts)
         for j in range(ch * CHUNK, min(nc, (ch + 1) * CHUNK)):
@@ -523,8 +535,9 @@ def ridge_cells(plane, cx, cy, r, f, g, G, thin, fslack):
     evals = np.zeros(nc, np.int64)
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = borrow(plane[0])
     consts = plane[1]
+    nw = cell_scratch(0, 0)
     for ch in prange((nc + CHUNK - 1) // CHUNK):
-        own = np.empty(SCRATCH)
+        own = np.empty(nw)
         scratch = borrow(own)
         plane = ((a0, a1, a2, a3, a4, a5, a6, a7, a8), consts)
         for j in range(ch * CHUNK, min(nc, (ch + 1) * CHUNK)):

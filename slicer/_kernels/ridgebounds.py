@@ -22,8 +22,8 @@ import numpy as np
 from numba import prange
 
 from .._jit import inline_kernel, parallel_kernel, unrefcounted_kernel
-from .borrow import borrow
-from .cellbounds import (PIECES, SLACK, _end_distances, _end_slopes, _ipow, _reach_interval, _second_sup,
+from .borrow import borrow, keep_alive
+from .cellbounds import (CHUNK, PIECES, SLACK, _end_distances, _end_slopes, _ipow, _reach_interval, _second_sup,
                          single_bin, square_of)
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 from .raysupport import kprime_max
@@ -77,7 +77,9 @@ def _across(cw, aw, nw, t0, t1, r, dlo):
 def _piece_weights(wx, wy, wz, ax, ay, az, tau_lo, tau_hi, t0, t1, r, sigma, m, cn):
     """Over the disc and the axis piece ``[t0, t1]`` (radii ``tau_lo <= tau_hi``):
     ``dlo`` (least ``‖p − q‖``), ``sec`` (upper bound of ``∫ α dt``), ``bl`` and
-    ``bh`` (bounds of ``∫ β dt``); ``sec < 0`` when no point of the piece reaches."""
+    ``bh`` (bounds of ``∫ β dt``); ``sec < 0`` when no point of the piece reaches
+    (the others are then 0). Every term is computed and the far case selected,
+    without a branch: the piece loop runs on vector lanes."""
     tc = min(max(wx * ax + wy * ay + wz * az, t0), t1)
     dist = math.sqrt(_end_distances(wx, wy, wz, ax, ay, az, tc)[1])
     dmax = math.sqrt(max(_end_distances(wx, wy, wz, ax, ay, az, t0)[1],
@@ -85,8 +87,7 @@ def _piece_weights(wx, wy, wz, ax, ay, az, tau_lo, tau_hi, t0, t1, r, sigma, m, 
     dlo = dist * (1.0 - SLACK) - r
     ith = 1.0 / tau_hi
     s_lo = max(dlo, 0.0) * ith * (1.0 - SLACK)
-    if s_lo >= sigma:
-        return dlo, -1.0, 0.0, 0.0
+    far = s_lo >= sigma
     it = 1.0 / tau_lo
     s_hi = (dmax * (1.0 + SLACK) + r) * it * (1.0 + SLACK)
     inv_s2 = 1.0 / (sigma * sigma)      # loop-invariant where this is inlined
@@ -94,12 +95,22 @@ def _piece_weights(wx, wy, wz, ax, ay, az, tau_lo, tau_hi, t0, t1, r, sigma, m, 
     u_hi = min(s_hi * s_hi * inv_s2, 1.0)
     ln = (t1 - t0) * cn
     it3 = it * it * it
-    return (dlo, ln * _second_sup(u_lo, u_hi, m) * it3, ln * _ipow(1.0 - u_hi, m - 1) * (ith * ith * ith),
-            ln * _ipow(1.0 - u_lo, m - 1) * it3)
+    sec = ln * _second_sup(u_lo, u_hi, m) * it3
+    bl = ln * _ipow(1.0 - u_hi, m - 1) * (ith * ith * ith)
+    bh = ln * _ipow(1.0 - u_lo, m - 1) * it3
+    return dlo, -1.0 if far else sec, 0.0 if far else bl, 0.0 if far else bh
+
+
+#: rows of :func:`_segment_frame`'s work area, each ``PIECES`` long: each
+#: piece's ``sec``, ``bl``, ``bh`` (:func:`_piece_weights`) and its ``|e·w|``
+#: bounds along u and v, general and across the axis
+_SEC, _BL, _BH, _PU, _PV, _TU, _TV = range(7)
+#: float64 entries of :func:`_segment_frame`'s work area
+FRAME_WORK = 7 * PIECES
 
 
 @unrefcounted_kernel
-def _segment_frame(seg, i, cx, cy, cz, r, ta, tb, ux, uy, n, sigma, norm, k1):
+def _segment_frame(seg, i, cx, cy, cz, r, ta, tb, ux, uy, n, sigma, norm, k1, work):
     """Bounds over the disc of segment ``i``'s ``f_vv`` and ``f_uu`` (above) and
     ``|f_uv|``, from the axis points in ``[ta, tb]`` cut into ``PIECES`` pieces
     (:func:`_piece_weights`; ``e·w`` by :func:`_across`), and a magnitude of the
@@ -109,10 +120,15 @@ def _segment_frame(seg, i, cx, cy, cz, r, ta, tb, ux, uy, n, sigma, norm, k1):
     Untapered, with ``w = w_a a + w'`` (``a`` the axis, ``w' ⟂ a``) and ``W`` the
     end terms' slope bound: ``f_ww <= Σ sec pe_w'² − Bl ‖w'‖² + |w_a| (|w_a| +
     2‖w'‖) W`` and ``|f_uv| <= Σ sec pe_u' pe_v' + |u'·v'| Bh + (|u_a| + |v_a| ‖u'‖) W``.
-    The smaller form is taken."""
+    The smaller form is taken.
+
+    Each piece's weights go to ``work`` (:data:`FRAME_WORK` float64) in a
+    loop without a dependence from one piece to the next (vector lanes),
+    then the sums run in piece order: the bounds of one loop, to the bit."""
     wx, wy, wz = cx - seg[i, AX], cy - seg[i, AY], cz - seg[i, AZ]
     ax, ay, az = seg[i, UX], seg[i, UY], seg[i, UZ]
     d = seg[i, DELTA]
+    tau0 = seg[i, TAU0]
     vx, vy = -uy, ux
     ua, va = ux * ax + uy * ay, vx * ax + vy * ay          # along the axis
     upx, upy, upz = ux - ua * ax, uy - ua * ay, -ua * az   # across it
@@ -122,27 +138,35 @@ def _segment_frame(seg, i, cx, cy, cz, r, ta, tb, ux, uy, n, sigma, norm, k1):
     cu, cv = wx * ux + wy * uy, wx * vx + wy * vy           # (c − a0)·w
     cup, cvp = wx * upx + wy * upy + wz * upz, wx * vpx + wy * vpy + wz * vpz
     step = (tb - ta) / PIECES
+    for j in range(PIECES):
+        if not tau0 + d * (ta + j * step) > 0.0:
+            return np.inf, np.inf, np.inf, np.inf
+    rows = (work[_SEC * PIECES:(_SEC + 1) * PIECES], work[_BL * PIECES:(_BL + 1) * PIECES],
+            work[_BH * PIECES:(_BH + 1) * PIECES], work[_PU * PIECES:(_PU + 1) * PIECES],
+            work[_PV * PIECES:(_PV + 1) * PIECES], work[_TU * PIECES:(_TU + 1) * PIECES],
+            work[_TV * PIECES:(_TV + 1) * PIECES])
+    geo = (wx, wy, wz, ax, ay, az, tau0, d, ta, tb, step, r)
+    dirs = (cu, ua, cv, va, cup, nu, cvp, nv)
+    if n == 6:      # the default kernel: the powers unroll, the piece loop runs on vector lanes
+        _frame_weights(rows, geo, dirs, 6, sigma, norm)
+    else:
+        _frame_weights(rows, geo, dirs, n, sigma, norm)
+    SEC, BL, BH, PU, PV, TU, TV = rows
     guu = gvv = guv = tuu = tvv = tuv = bl = bh = 0.0
     for j in range(PIECES):
-        t0 = ta + j * step
-        t1 = tb if j == PIECES - 1 else ta + (j + 1) * step
-        tau_lo = seg[i, TAU0] + d * t0
-        if not tau_lo > 0.0:
-            return np.inf, np.inf, np.inf, np.inf
-        dlo, sec, blj, bhj = _piece_weights(wx, wy, wz, ax, ay, az, tau_lo, seg[i, TAU0] + d * t1, t0, t1, r,
-                                            sigma, n // 2, norm * n / (sigma * sigma))
+        sec = SEC[j]
         if sec < 0.0:
             continue
-        bl += blj
-        bh += bhj
-        pu = _across(cu, ua, 1.0, t0, t1, r, dlo)
-        pv = _across(cv, va, 1.0, t0, t1, r, dlo)
+        bl += BL[j]
+        bh += BH[j]
+        pu = PU[j]
+        pv = PV[j]
         guu += sec * pu * pu
         gvv += sec * pv * pv
         guv += sec * pu * pv
         if d == 0.0:        # the untapered form's sums (a tapered segment has none)
-            pu = _across(cup, 0.0, nu, t0, t1, r, dlo)
-            pv = _across(cvp, 0.0, nv, t0, t1, r, dlo)
+            pu = TU[j]
+            pv = TV[j]
             tuu += sec * pu * pu
             tvv += sec * pv * pv
             tuv += sec * pu * pv
@@ -158,9 +182,35 @@ def _segment_frame(seg, i, cx, cy, cz, r, ta, tb, ux, uy, n, sigma, norm, k1):
     return fvv, fuu, fuv, mag
 
 
+@inline_kernel
+def _frame_weights(rows, geo, dirs, n, sigma, norm):
+    """Each piece's :func:`_piece_weights` and :func:`_across` bounds into
+    ``rows`` (:func:`_segment_frame`), from ``geo = (wx, wy, wz, ax, ay, az,
+    tau0, d, ta, tb, step, r)`` and ``dirs = (cu, ua, cv, va, cup, nu, cvp,
+    nv)``."""
+    SEC, BL, BH, PU, PV, TU, TV = rows
+    wx, wy, wz, ax, ay, az, tau0, d, ta, tb, step, r = geo
+    cu, ua, cv, va, cup, nu, cvp, nv = dirs
+    m = n // 2
+    cn = norm * n / (sigma * sigma)
+    for j in range(PIECES):
+        t0 = ta + j * step
+        t1 = tb if j == PIECES - 1 else ta + (j + 1) * step
+        dlo, sec, blj, bhj = _piece_weights(wx, wy, wz, ax, ay, az, tau0 + d * t0, tau0 + d * t1, t0, t1, r,
+                                            sigma, m, cn)
+        SEC[j] = sec
+        BL[j] = blj
+        BH[j] = bhj
+        PU[j] = _across(cu, ua, 1.0, t0, t1, r, dlo)
+        PV[j] = _across(cv, va, 1.0, t0, t1, r, dlo)
+        TU[j] = _across(cup, 0.0, nu, t0, t1, r, dlo)
+        TV[j] = _across(cvp, 0.0, nv, t0, t1, r, dlo)
+
+
 @unrefcounted_kernel
-def _frame_disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1):
-    """:func:`ridge_bounds` of one disc from the segments ``lst[a:b]``.
+def _frame_disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, work):
+    """:func:`ridge_bounds` of one disc from the segments ``lst[a:b]`` (``work``:
+    :data:`FRAME_WORK` float64, :func:`_segment_frame`'s).
 
     Returns
     -------
@@ -175,7 +225,7 @@ def _frame_disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1):
         ta, tb = _reach_interval(seg, i, cx, cy, z, r, sigma)
         if not tb > ta:
             continue
-        fvv, fuu, fuv, mg = _segment_frame(seg, i, cx, cy, z, r, ta, tb, ux, uy, n, sigma, norm, k1)
+        fvv, fuu, fuv, mg = _segment_frame(seg, i, cx, cy, z, r, ta, tb, ux, uy, n, sigma, norm, k1, work)
         vv += fvv
         uu += fuu
         uv += fuv
@@ -220,8 +270,12 @@ def ridge_bounds_binned(seg, squares, cx, cy, z, r, n, sigma, norm):
     VV = np.zeros(nc)
     UU = np.zeros(nc)
     UV = np.zeros(nc)
-    for j in prange(nc):
-        c = square_of(cx[j], cy[j], x0, y0, side, nx, ny)
-        UXo[j], UYo[j], VV[j], UU[j], UV[j] = _frame_disc(seg, bins, offsets[c], offsets[c + 1], cx[j], cy[j], z,
-                                                          r[j], n, sigma, norm, k1)
+    for ch in prange((nc + CHUNK - 1) // CHUNK):
+        own = np.empty(FRAME_WORK)
+        work = borrow(own)
+        for j in range(ch * CHUNK, min(nc, (ch + 1) * CHUNK)):
+            c = square_of(cx[j], cy[j], x0, y0, side, nx, ny)
+            UXo[j], UYo[j], VV[j], UU[j], UV[j] = _frame_disc(seg, bins, offsets[c], offsets[c + 1], cx[j], cy[j],
+                                                              z, r[j], n, sigma, norm, k1, work)
+        keep_alive((own,))
     return UXo, UYo, VV, UU, UV
