@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from slicer import Skeleton
 from slicer._kernels import cellbounds as cb
 from slicer._kernels import ridgebounds as rb
-from slicer._kernels.field import AX, AY, AZ, DELTA, TAU0, UX, UY, UZ
+from slicer._kernels.field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 from slicer._kernels.raysupport import kprime_max
 from slicer.field import point_grid
 
@@ -148,6 +148,14 @@ def one_loop_frame_sums(seg, i, cx, cy, cz, r, ta, tb, ux, uy, n, sigma, norm):
     return sums
 
 
+def _near(seg, i, sigma, rng):
+    """A point within the support of segment ``i`` (a random axis point, moved less than its support radius)."""
+    t = rng.uniform(0.0, seg[i, LEN])
+    off = rng.normal(size=3)
+    off *= rng.uniform(0.0, 0.95) * sigma * (seg[i, TAU0] + seg[i, DELTA] * t) / np.linalg.norm(off)
+    return [seg[i, c] + t * seg[i, u] + o for c, u, o in zip((AX, AY, AZ), (UX, UY, UZ), off)]
+
+
 def _scene(seed, degree, tapered):
     rng = np.random.default_rng(seed)
     nodes = rng.uniform(0.0, 3.0, (6, 3))
@@ -170,7 +178,8 @@ def test_piece_bounds_are_one_loop_over_the_pieces_to_the_bit(seed, degree, tape
     reached = 0
     for _ in range(30):
         i = int(rng.integers(seg.shape[0]))
-        cx, cy, cz = rng.uniform(0.0, 3.0, 3)
+        # a disc centred in the support (it reaches it), or anywhere (it may reach only with its radius)
+        cx, cy, cz = _near(seg, i, s.sigma, rng) if rng.random() < 0.7 else rng.uniform(0.0, 3.0, 3)
         r = 10.0 ** rng.uniform(-4, 0)
         ta, tb = cb._reach_interval(seg, i, cx, cy, cz, r, s.sigma)
         if not tb > ta:
@@ -200,8 +209,9 @@ def test_crest_piece_sums_are_one_loop_over_the_pieces_to_the_bit(seed, degree, 
     reached = 0
     for _ in range(30):
         i = int(rng.integers(seg.shape[0]))
-        cx, cy = rng.uniform(0.0, 3.0, 2)
-        cz = 1.5 if lying else rng.uniform(0.0, 3.0)
+        cx, cy, cz = _near(seg, i, s.sigma, rng) if rng.random() < 0.7 else rng.uniform(0.0, 3.0, 3)
+        if lying:
+            cz = 1.5
         r = 10.0 ** rng.uniform(-4, 0)
         phi = rng.uniform(0.0, 2.0 * math.pi)
         ux, uy = math.cos(phi), math.sin(phi)
