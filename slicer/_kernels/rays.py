@@ -257,8 +257,9 @@ def eval_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, cach
 
 
 #: fewest members of a piece whose evaluations go through the lanes
-#: (:func:`eval_lanes_along`); with fewer, most points evaluate one or two
-LANES_FROM = 3
+#: (:func:`eval_lanes_along`): two evaluations cost less in half the lanes
+#: than one after the other (docs/benchmarks.md, "Two members in the lanes")
+LANES_FROM = 2
 
 
 @inline_kernel
