@@ -33,14 +33,17 @@ Jobs (full size; ``--quick`` shrinks every one to a smoke test of a few seconds)
 
 Every job runs in a fresh subprocess with ``PYTHONPATH`` set to the tree
 under test and a neutral working folder, so ``--baseline`` compares two
-checkouts on the same machine in the same run. Before timing, one small job
-per tree loads (or compiles) its Numba kernels. The table shows the median of
+checkouts on the same machine in the same run. Before timing, each tree's
+packages are byte-compiled (as ``pip install`` does, so that no run pays
+compiling Python sources, even where ``PYTHONDONTWRITEBYTECODE`` is set) and one
+small job per tree loads (or compiles) its Numba kernels. The table shows the median of
 ``--repeat`` runs; the JSON (``--json``) holds every run, the command and the
 machine (:mod:`validation.machine`), never a local path.
 """
 from __future__ import annotations
 
 import argparse
+import compileall
 import json
 import os
 import re
@@ -217,11 +220,27 @@ def _printer_file(tree: Path, size, threads: int, work: Path) -> dict:
             "write_seconds": float(m.group(3)), "bytes": out.stat().st_size}
 
 
+#: the packages of a tree that the jobs import
+PACKAGES = ("slicer", "formats", "validation", "sample_lattices")
+
+
+def byte_compile(tree: Path) -> bool:
+    """Write the bytecode of ``tree``'s packages beside their sources (``__pycache__``),
+    as ``pip install`` does for an installed package; True when every file compiled."""
+    ok = True
+    for pkg in PACKAGES:
+        if (tree / pkg).is_dir():
+            ok = compileall.compile_dir(str(tree / pkg), quiet=1, workers=1) and ok
+    return bool(ok)
+
+
 def measure(trees: dict, jobs, repeat: int, threads: int, quick: bool, log=print) -> list[dict]:
     """Run every job ``repeat`` times on every tree; returns one row per (job, tree)."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="skelslice-speed-") as tmp:
         for label, tree in trees.items():
+            if not byte_compile(tree):
+                raise RuntimeError(f"{label}: a source file of the tree does not compile")
             wall, text = _run(_worker_cmd("warm", threads), tree, threads, Path(tmp))
             log(f"{label}: kernels loaded in {wall:.1f} s")
         for job in jobs:
@@ -313,7 +332,7 @@ def main(argv=None) -> int:
     if args.json is not None:
         doc = {"benchmark": "speed", "command": machine.command_line("python benchmarks/speed.py", argv),
                "machine": machine.describe(), "quick": args.quick, "repeat": args.repeat,
-               "threads": args.threads, "trees": labels, "rows": rows}
+               "threads": args.threads, "trees": labels, "bytecode": "compiled before timing", "rows": rows}
         machine.write_json(args.json, doc)
     return 0
 

@@ -91,3 +91,30 @@ def test_bucket_size_benchmark_refuses_a_bad_edge(tmp_path):
     p = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bucket_size.py"), "--quick", "--buckets", "0"],
                        capture_output=True, text=True, encoding="utf-8", cwd=tmp_path)
     assert p.returncode == 2 and "must be >= 1" in p.stderr
+
+
+def test_speed_benchmark_byte_compiles_each_tree(tmp_path):
+    """Every tree is timed as an installed package runs: its packages' bytecode is
+    written before timing (so no run compiles Python sources, even under
+    PYTHONDONTWRITEBYTECODE), and a tree whose source does not compile is refused."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("speed_bench", ROOT / "benchmarks" / "speed.py")
+    sb = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(sb)
+    tree = tmp_path / "tree"
+    (tree / "slicer" / "sub").mkdir(parents=True)
+    (tree / "slicer" / "a.py").write_text("X = 1\n")
+    (tree / "slicer" / "sub" / "b.py").write_text("Y = 2\n")
+    (tree / "formats").mkdir()
+    (tree / "formats" / "c.py").write_text("Z = 3\n")
+    (tree / "other").mkdir()
+    (tree / "other" / "d.py").write_text("W = 4\n")
+    assert sb.byte_compile(tree)
+    tag = sys.implementation.cache_tag
+    for f in ("slicer/a.py", "slicer/sub/b.py", "formats/c.py"):
+        src = tree / f
+        assert (src.parent / "__pycache__" / f"{src.stem}.{tag}.pyc").is_file(), f
+    assert not (tree / "other" / "__pycache__").exists()     # not one of the packages the jobs import
+    (tree / "formats" / "bad.py").write_text("def (:\n")
+    assert not sb.byte_compile(tree)
