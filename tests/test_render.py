@@ -248,6 +248,43 @@ def test_opacity_cut_off_saves_work_and_keep_roots_keeps_them():
     assert cut.rgba[..., 3].max() <= 1.0 and np.all(cut.rgba[cut.count >= 4, 3] >= 0.9)
 
 
+
+def test_refine_root_solves_the_cubic_only_where_the_crossing_is_kept():
+    """refine_root with ``exact`` returns the cubic Hermite root of its final
+    bracket; without it (a crossing that is only shaded) the bracket's
+    midpoint, from the same evaluations and the same gradient. Both lie
+    within the tolerance of the crossing; the cubic's root is on it to far
+    better than that. Bisection returns the midpoint either way."""
+    from slicer._kernels.field import SCRATCH
+    from slicer._kernels.render import field_grad_along, refine_root
+    from slicer.field import segment_table
+
+    skel = SCENES["cone"]
+    seg = segment_table(skel)
+    hprim = np.zeros(1, np.int64)
+    sarr = np.zeros(1, np.int64)
+    kp = (skel.degree // 2, 1.0 / skel.sigma ** 2, skel.normalisation)
+    ray = (-3.0, 0.1, 4.0, 1.0, 0.0, 0.0)          # across the cone: outside at x = -2.5, inside at x = 0.4
+    scratch = np.empty(SCRATCH)
+    a, b = 0.5, 3.4
+    fa, _, _, _, da = field_grad_along(seg, hprim, sarr, 1, ray, a, kp, scratch)
+    fb, _, _, _, db = field_grad_along(seg, hprim, sarr, 1, ray, b, kp, scratch)
+    assert fa < 1.0 <= fb
+    bracket = (a, b, fa - 1.0, fb - 1.0, da, db)
+    tol = 1e-3
+    exact = refine_root(seg, hprim, sarr, 1, ray, bracket, (tol, False, True), kp, scratch)
+    mid = refine_root(seg, hprim, sarr, 1, ray, bracket, (tol, False, False), kp, scratch)
+    assert exact[1:] == mid[1:] and mid[5] and mid[4] > 0       # same gradient, evaluations, have_grad
+    assert exact[0] != mid[0] and abs(exact[0] - mid[0]) <= 0.5 * tol
+    f_exact, _, _, _, slope = field_grad_along(seg, hprim, sarr, 1, ray, exact[0], kp, scratch)
+    f_mid = field_grad_along(seg, hprim, sarr, 1, ray, mid[0], kp, scratch)[0]
+    assert abs(f_mid - 1.0) <= abs(slope) * tol            # within the tolerance
+    assert abs(f_exact - 1.0) <= 1e-3 * abs(slope) * tol   # on the crossing
+    for keep in (True, False):
+        bis = refine_root(seg, hprim, sarr, 1, ray, bracket, (tol, True, keep), kp, scratch)
+        assert bis[0] == refine_root(seg, hprim, sarr, 1, ray, bracket, (tol, True, not keep), kp, scratch)[0]
+
+
 # ----------------------------------------------------------------------------- shading and compositing
 def _shade_reference(n_out, view, light, opacities):
     """Front-to-back composite of crossings with outward normals n_out."""

@@ -128,23 +128,28 @@ def field_grad_along(seg, hprim, sarr, ns, ray, t, kp, scratch):
 
 
 @unrefcounted_kernel
-def refine_root(seg, hprim, sarr, ns, ray, a, b, ga, gb, da, db, tol, bisect, kp, scratch):
-    """Converge on the crossing bracketed by ``[a, b]`` of the ray ``ray =
-    (ox, oy, oz, dx, dy, dz)`` until it is narrower than ``tol`` (``kp =
-    (m, 1/sigma^2, N)``).
+def refine_root(seg, hprim, sarr, ns, ray, bracket, how, kp, scratch):
+    """Converge on the crossing bracketed by ``bracket = (a, b, ga, gb, da,
+    db)`` of the ray ``ray = (ox, oy, oz, dx, dy, dz)`` until the bracket is
+    narrower than ``tol`` (``how = (tol, bisect, exact)``, ``kp = (m,
+    1/sigma^2, N)``).
 
     ``ga = F(a) - 1`` and ``gb = F(b) - 1`` lie on opposite sides of the
     iso-value (``F >= 1`` is inside); ``da``, ``db`` are ``F'`` along the ray.
     Hermite mode takes the Hermite estimate, kept ``tol / 2`` away from the
     bracket ends so a well-predicted root is bracketed to ``tol`` by the next
-    step (the estimate's Newton steps stop at ``tol / 8``; the final bracket's
-    estimate is the cubic's root); two steps in a row that fail to halve the
-    bracket force a bisection. ``bisect`` uses pure bisection.
+    step (the estimate's Newton steps stop at ``tol / 8``); two steps in a
+    row that fail to halve the bracket force a bisection. ``bisect`` uses
+    pure bisection.
 
     Returns
     -------
     t : float
-        The crossing (Hermite estimate, or midpoint, of the final bracket).
+        The crossing: with ``exact``, or when no point was evaluated, the
+        final bracket's estimate (its cubic's root; with ``bisect``, its
+        midpoint); otherwise only the final bracket's midpoint, for a caller
+        that needs the gradient near the crossing but not where it is (the
+        cubic's root costs several Newton steps).
     gx, gy, gz : float
         Gradient of F at the last point evaluated (within ``tol`` of t).
     nev : int
@@ -152,6 +157,8 @@ def refine_root(seg, hprim, sarr, ns, ray, a, b, ga, gb, da, db, tol, bisect, kp
     have_grad : bool
         False when no point was evaluated (the bracket was already narrow).
     """
+    a, b, ga, gb, da, db = bracket
+    tol, bisect, exact = how
     ina = ga >= 0.0
     nev = 0
     fails = 0
@@ -192,7 +199,7 @@ def refine_root(seg, hprim, sarr, ns, ray, a, b, ga, gb, da, db, tol, bisect, kp
             fails += 1
         else:
             fails = 0
-    if bisect:
+    if bisect or (have and not exact):
         t = 0.5 * (a + b)
     else:
         t = hermite_point(a, b, ga, gb, da, db)
@@ -453,8 +460,9 @@ def _add_crossing(walk, ns, bracket, opt, shade, out, acc):
     tol, strict, bisect, cut_support, lazy, keep_roots = opt
     rgb, roots, out4, counts = out
     acc_r, acc_g, acc_b, acc_a, cut, nroot, done = acc
-    ta, tb, ga, gb, da, db = bracket
-    t, gx, gy, gz, ne, have = refine_root(seg, hprim, sarr, ns, ray, ta, tb, ga, gb, da, db, tol, bisect, kp, scratch)
+    # where the crossing lies is needed only to keep it: shading takes the gradient at the last point evaluated
+    t, gx, gy, gz, ne, have = refine_root(seg, hprim, sarr, ns, ray, bracket, (tol, bisect, keep_roots), kp,
+                                          scratch)
     counts[1] += ne
     if keep_roots:
         if nroot >= roots.shape[0]:
