@@ -17,7 +17,7 @@ from .grid import SliceGrid
 from .skeleton import Skeleton
 
 #: default bucket edge of the slicer, pixels (every API default and the CLI's ``--bucket``)
-DEFAULT_BUCKET = 64
+DEFAULT_BUCKET = 32
 
 
 @dataclass(frozen=True)
@@ -56,7 +56,7 @@ class Buckets:
         return int(np.diff(self.offsets).max()) if self.offsets.shape[0] > 1 else 0
 
 
-def build_buckets(skel: Skeleton, grid: SliceGrid, size: int = 64) -> Buckets:
+def build_buckets(skel: Skeleton, grid: SliceGrid, size: int = DEFAULT_BUCKET) -> Buckets:
     """Bin the segments' support footprints into B x B pixel buckets.
 
     Parameters

@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from formats.printers import get_printer, place
 from slicer import GridError, OptionError, Skeleton
+from slicer.buckets import DEFAULT_BUCKET
 from slicer.field import support_boxes
 from slicer.grid import make_grid
 from slicer.lattice import generate_lattice
@@ -140,12 +141,14 @@ def test_cull_keeps_exactly_what_the_tile_needs(lattice):
 # ----------------------------------------------------------------------------- plans
 def test_plan_tiles_and_slabs_cover_the_grid_once(lattice):
     grid = make_grid(lattice.support_bounds(), PX)
-    assert plan_job(lattice, grid, TraceOptions(), tile=100).tile == 128   # a multiple of the bucket
-    plan = plan_job(lattice, grid, TraceOptions(), budget=None, tile=40)
-    assert plan.tile == 40                      # smaller than a bucket: kept
+    B = DEFAULT_BUCKET
+    assert plan_job(lattice, grid, TraceOptions(), tile=3 * B + 4).tile == 4 * B   # a multiple of the bucket
+    small = B * 5 // 8
+    plan = plan_job(lattice, grid, TraceOptions(), budget=None, tile=small)
+    assert plan.tile == small                   # smaller than a bucket: kept
     cover = np.zeros((grid.height, grid.width), int)
     for i0, j0, w, h in plan.tiles():
-        assert i0 % 40 == 0 and j0 % 40 == 0
+        assert i0 % small == 0 and j0 % small == 0
         cover[j0:j0 + h, i0:i0 + w] += 1
     assert np.all(cover == 1)
     # a sub-rectangle: tiles are clipped to it and stay on the same lattice
