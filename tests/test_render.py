@@ -248,7 +248,6 @@ def test_opacity_cut_off_saves_work_and_keep_roots_keeps_them():
     assert cut.rgba[..., 3].max() <= 1.0 and np.all(cut.rgba[cut.count >= 4, 3] >= 0.9)
 
 
-
 def test_refine_root_solves_the_cubic_only_where_the_crossing_is_kept():
     """refine_root with ``exact`` returns the cubic Hermite root of its final
     bracket; without it (a crossing that is only shaded) the bracket's
