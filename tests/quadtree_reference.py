@@ -14,7 +14,7 @@ from slicer._kernels.cellbounds import PIECES, SLACK, disc_bounds, disc_bounds_b
 from slicer._kernels.cellstate import (IN, ONEDIR, OUT, SMALL, THIN, clear_cells, corner_candidates, crest_candidates,
                                        judge_cells, settle_from_parent)
 from slicer._kernels.ridgebounds import ridge_bounds, ridge_bounds_binned
-from slicer.contours.cells import COARSE_PIECES, INHERIT_BELOW, _bin_segments
+from slicer.contours.cells import COARSE_PIECES, _bin_segments, inherit_side
 from slicer.contours.roots import FIELD_SLACK, _field
 from slicer.field import point_grid
 from slicer.ordering import stable_argsort
@@ -66,8 +66,11 @@ class _Bounds:
         f0, g0, G = taylor[0], taylor[1], taylor[2]
         ux, uy, vv, uu, uv = self.ridge_bounds(cx, cy, r)
         state = np.full(cx.size, -1, np.int8)
+        if self.skel.degree < 4:          # no second-derivative bound: no crest cell
+            return state
+        convex = self.convex_across(cx, cy, r, ux, uy, g0, G)
         with np.errstate(invalid="ignore"):
-            ok = np.flatnonzero(-vv > 0.0)
+            ok = np.flatnonzero(~convex & (-vv > 0.0))
         if ok.size == 0:
             return state
         cx, cy, r, f0, g0, G = cx[ok], cy[ok], r[ok], f0[ok], g0[ok], G[ok]
@@ -99,6 +102,26 @@ class _Bounds:
             verdict = np.where(best < 1.0, OUT, np.where(8.0 * (best - 1.0) <= curv * self.thin ** 2, THIN, -1))
         state[ok] = verdict
         return state
+
+    def convex_across(self, cx, cy, r, ux, uy, g0, G) -> np.ndarray:
+        """Discs where the gradient at ``c + h v`` (``|h| = 0.999 r``, first on the
+        side where F falls along v, then on the other) proves ``F_vv > 0``
+        somewhere: ``(∇F(c + h v) − ∇F(c))·v`` (h signed) is the integral of
+        ``F_vv`` from c to ``c + h v``."""
+        vx, vy = -uy, ux
+        gv0 = g0[:, 0] * vx + g0[:, 1] * vy
+        n0 = np.hypot(g0[:, 0], g0[:, 1])
+        h = np.where(gv0 >= 0.0, -0.999 * r, 0.999 * r)
+        convex = np.zeros(cx.size, bool)
+        todo = np.arange(cx.size)
+        for _ in range(2):
+            _, g = self._at(cx[todo] + h[todo] * vx[todo], cy[todo] + h[todo] * vy[todo])
+            rise = (g[:, 0] * vx[todo] + g[:, 1] * vy[todo] - gv0[todo]) * np.sign(h[todo])
+            hit = rise > FIELD_SLACK * (np.hypot(g[:, 0], g[:, 1]) + n0[todo] + 2.0 * G[todo])
+            convex[todo[hit]] = True
+            todo = todo[~hit]
+            h = -h
+        return convex
 
     def _at(self, x: np.ndarray, y: np.ndarray):
         """Field and in-plane gradient at points of the plane, (k,) and (k, 2)."""
@@ -192,14 +215,16 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
         # (ix + 0.5) s is (ix unit + unit/2) h exactly (s = unit h, a power of two):
         # a split cell's centre is bit for bit its children's common corner
         inherited = None
-        if parent is not None and s <= INHERIT_BELOW * bounds.tol:
+        if parent is not None and s <= inherit_side(bounds.tol, s0):
             # small cells: the parent's bounds hold over the child's disc and are
             # nearly as tight there; new ones would cost more than they save
             inherited = tuple(a[up] for a in parent[1][2:])
         # larger cells: first with the parent's bounds; those left unresolved get their own
         # (the centre's value and gradient already known), so split cells carry their own
+        if parent is None:                # root cells: the cheap bounds only
+            inherited = bounds.disc_bounds(cx, cy, np.full(ix.size, rr), COARSE_PIECES)
         st_r, kap_r, slo_r, taylor = bounds.classify(cx[rest], cy[rest], np.full(rest.size, rr),
-                                                     inherited if inherited is not None or parent is None
+                                                     inherited if inherited is not None
                                                      else tuple(a[up] for a in parent[1][2:]))
         if inherited is None and parent is not None:
             again = np.flatnonzero(st_r < 0)

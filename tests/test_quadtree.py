@@ -23,12 +23,16 @@ from slicer.field import evaluate
 CROSS = Skeleton([[0, 0, 0], [2, 0, 0], [-2, 0, 0], [0, 2, 0], [0, -2, 0], [0, 0, 1.5]],
                  [[0, 1], [0, 2], [0, 3], [0, 4], [0, 5]], [[0.3, 0.3]] * 4 + [[0.2, 0.2]])
 
+#: the cross with the degree-2 kernel: no second-derivative bound, no crest cell
+CROSS2 = Skeleton(CROSS.nodes, CROSS.segments, CROSS.radii, 2)
+
 PLANES = [("octet_2x2x2", 1.03, 1e-3), ("octet_2x2x2", 2.9, 1e-3), ("jellyfish", 12.0, 1e-3),
-          ("microstructure", 2.0, 2e-3), ("cross", 0.3, 1e-3), ("cross", 0.1, 1e-2)]
+          ("microstructure", 2.0, 2e-3), ("cross", 0.3, 1e-3), ("cross", 0.1, 1e-2), ("cross2", 0.3, 2e-2),
+          ("octet_2x2x2", 1.03, 1e-2)]
 
 
 def _skel(name):
-    return CROSS if name == "cross" else load_sample(name)
+    return {"cross": CROSS, "cross2": CROSS2}.get(name) or load_sample(name)
 
 
 def _setup(skel, z, tol, module):
@@ -59,6 +63,10 @@ def test_the_compiled_quadtree_is_the_numpy_one_bit_for_bit(name, z, tol):
     state = got[4]
     if name == "cross" and z == 0.3:
         assert (state == cells.THIN).any()                      # crest cells were tried and settled
+    if name == "cross2":                                        # degree 2: no curvature bound at all
+        assert not (state == cells.THIN).any() and not (state == cells.SIMPLE).any()
+        assert (state == cells.SMALL).any() and (state == cells.OUT).any()
+        return
     assert (state == cells.SIMPLE).any() and (state == cells.OUT).any()
 
 
@@ -92,6 +100,30 @@ def test_classify_and_ridge_of_arbitrary_discs_match_the_numpy_steps():
     assert np.array_equal(ra, rb)
     assert (ra == cells.THIN).any() and (ra == cells.OUT).any()
     assert new.evaluations == old.evaluations
+
+
+@pytest.mark.parametrize("name, z", [("cross", 0.3), ("octet_2x2x2", 2.9), ("octet_2x2x2", 1.03)])
+def test_the_convexity_pretest_refuses_only_what_the_crest_bound_would(name, z):
+    """A crest cell needs ``F_vv`` bounded below 0 over its disc; the gradient at
+    ``c ± h v`` proving ``F_vv > 0`` somewhere in it skips the frame bound. Where
+    it does, that bound is indeed not negative, so the tree is the one without
+    the pre-test; and it leaves the cells whose bound is negative to the test."""
+    skel, tol = _skel(name), 1e-3
+    b, _ = _setup(skel, z, tol, ref)
+    rng = np.random.default_rng(11)
+    lo, hi = skel.support_bounds()
+    cx = rng.uniform(lo[0], hi[0], 6000)
+    cy = rng.uniform(lo[1], hi[1], 6000)
+    r = 0.5 * math.sqrt(2.0) * rng.choice([0.004, 0.02, 0.1, 0.2], 6000) * (1.0 + SLACK)
+    taylor = b.classify(cx, cy, r)[3]
+    near = taylor[4] >= 1.0                     # the field was evaluated at the centre
+    cx, cy, r, taylor = cx[near], cy[near], r[near], [a[near] for a in taylor]
+    ux, uy, vv = b.ridge_bounds(cx, cy, r)[:3]
+    convex = b.convex_across(cx, cy, r, ux, uy, taylor[1], taylor[2])
+    assert convex.sum() > 100
+    assert np.all(vv[convex] >= 0.0)
+    if name == "cross":
+        assert (~convex & (vv < 0.0)).sum() > 100
 
 
 @pytest.mark.parametrize("name, z, tol", PLANES[:3] + PLANES[4:5])

@@ -157,7 +157,7 @@ def test_error_time_sweep_small(tmp_path):
 
 def test_error_time_contours_compares_the_two_routes_on_one_grid(tmp_path):
     """``--contours PIXELS LAYERS`` runs the raster route and the guaranteed
-    contours (1 and 10 um) on that grid, and the JSON says so."""
+    contours, each at 1 and 10 um, on that grid, and the JSON says so."""
     from validation.error_time import main as error_time
 
     out = tmp_path / "et.json"
@@ -165,11 +165,12 @@ def test_error_time_contours_compares_the_two_routes_on_one_grid(tmp_path):
                        "--json", str(out)]) == 0
     res = json.loads(out.read_text())
     rows = res["rows"]
-    assert [(r["method"], r["tol"]) for r in rows] == [("interval", 1e-3), ("guaranteed", 1e-3), ("guaranteed", 1e-2)]
+    assert [(r["method"], r["tol"]) for r in rows] == [("interval", 1e-3), ("guaranteed", 1e-3),
+                                                      ("interval", 1e-2), ("guaranteed", 1e-2)]
     assert {(r["pixels"], r["layers"]) for r in rows} == {(24, 12)}
     assert res["reference"]["pixels"] == 96 and "--contours" in res["command"]
     assert all(np.isfinite(r["error_layer"]) and r["seconds"] > 0 and r["evaluations"] > 0 for r in rows)
-    assert rows[1]["contour_vertices"] > 0 and rows[2]["contour_vertices"] > 0
+    assert all(r["contour_vertices"] > 0 for r in rows)
 
 
 def test_cli_bench_needs_a_benchmark():

@@ -78,11 +78,10 @@ def default_sweep(quick: bool = False) -> list[dict]:
 
 
 def contour_sweep(pixels: int = 113, layers: int = 113) -> list[dict]:
-    """The two contour routes on one grid (``--contours``): the tracer's raster
-    with root-refined contours, and the guaranteed contours at 1 and 10 um."""
+    """The two contour routes on one grid (``--contours``), each at 1 and 10 um:
+    the tracer's raster with root-refined contours, and the guaranteed contours."""
     base = {**BASE, "pixels": int(pixels), "layers": int(layers)}
-    return [{**base, "method": "interval"}, {**base, "method": "guaranteed"},
-            {**base, "method": "guaranteed", "tol": 1e-2}]
+    return [{**base, "method": m, "tol": t} for t in (1e-3, 1e-2) for m in ("interval", "guaranteed")]
 
 
 def square_box(skel):

@@ -33,7 +33,7 @@ from .cellstate import (IN, ONEDIR, OUT, SMALL, THIN, _judge_one, corner_candida
 from .field import SCRATCH
 from .points import point_field
 from .raysupport import kprime_max
-from .ridgebounds import FRAME_WORK, _frame_disc
+from .ridgebounds import FRAME_WORK, _frame_along, _nearest_axis
 
 #: cells per task of a level's ``prange`` (each task owns one field scratch array)
 CHUNK = 64
@@ -98,12 +98,51 @@ def disc_at(plane, cx, cy, r, pieces, scratch):
 
 
 @inline_kernel
-def frame_at(plane, cx, cy, r, scratch):
-    """``ux, uy, FVV, FUU, FUV`` of one disc (:func:`slicer._kernels.ridgebounds.ridge_bounds`);
-    ``scratch`` (:func:`cell_scratch`) lends its disc work area."""
+def axis_at(plane, cx, cy, r):
+    """``ux, uy``: the frame of one disc's crest bounds, the in-plane direction
+    of the axis nearest its centre (:func:`slicer._kernels.ridgebounds._nearest_axis`)."""
+    lst, a, b = _bin_of(plane, cx, cy, r)
+    return _nearest_axis(plane[0][0], lst, a, b, cx, cy, plane[1][6], r, plane[1][8])
+
+
+@inline_kernel
+def frame_at(plane, cx, cy, r, ux, uy, scratch):
+    """``FVV, FUU, FUV`` of one disc in the frame ``u = (ux, uy)`` (:func:`axis_at`;
+    :func:`slicer._kernels.ridgebounds.ridge_bounds`); ``scratch``
+    (:func:`cell_scratch`) lends its disc work area."""
     lst, a, b = _bin_of(plane, cx, cy, r)
     z, n, sigma, norm, k1 = plane[1][6:11]
-    return _frame_disc(plane[0][0], lst, a, b, cx, cy, z, r, n, sigma, norm, k1, scratch[SCRATCH:])
+    return _frame_along(plane[0][0], lst, a, b, cx, cy, z, r, ux, uy, n, sigma, norm, k1, scratch[SCRATCH:])
+
+
+@inline_kernel
+def convex_across(plane, cx, cy, r, ux, uy, gx0, gy0, G, fslack, scratch):
+    """Whether ``F_vv > 0`` somewhere in the disc (``v = (−uy, ux)``), proven
+    by the gradient at one or two points: ``(∇F(c + h v) − ∇F(c))·v`` is the
+    integral of ``F_vv`` along the segment from ``c`` to ``c + h v`` (h signed,
+    ``|h| < r``), so a positive value puts a positive ``F_vv`` in the disc, and
+    no upper bound of ``F_vv`` over it can be negative: the crest test would fail
+    (docs/math.md §10.1). The side away from the crest (where ``F`` falls along
+    v) is tried first. ``gx0, gy0``: the gradient at ``c``; a difference counts
+    only beyond the two gradients' error budget ``fslack (‖∇F‖ + ‖∇F(c)‖ + 2 G)``
+    (``G`` bounds the in-plane slope over the disc).
+
+    Returns
+    -------
+    convex : bool
+    evaluations : int
+    """
+    vx, vy = -uy, ux
+    gv0 = gx0 * vx + gy0 * vy
+    g0 = math.hypot(gx0, gy0)
+    h = -0.999 * r if gv0 >= 0.0 else 0.999 * r
+    for k in range(2):
+        _, gx, gy = field_at(plane, cx + h * vx, cy + h * vy, scratch)
+        rise = (gx * vx + gy * vy - gv0) * (1.0 if h > 0.0 else -1.0)
+        if rise > fslack * (math.hypot(gx, gy) + g0 + 2.0 * G):
+            return True, k + 1
+        h = -h
+    return False, 2
 
 
 @inline_kernel
@@ -161,15 +200,22 @@ def _crest_bound(f, gx, gy, G, ux, uy, r, fixed, uv, curv, fslack):
 def ridge_at(plane, cx, cy, r, f0, gx0, gy0, G, thin2, fslack, scratch):
     """OUT, THIN or -1 of one crest cell (docs/math.md §10.1): the bound ``M``
     from the centre and two steps towards the crest along v (Newton, then
-    secant), the least kept.
+    secant), the least kept; -1 with no bound computed where
+    :func:`convex_across` proves that none can be negative.
 
     Returns
     -------
     state, evaluations
     """
-    ux, uy, vv, uu, uv = frame_at(plane, cx, cy, r, scratch)
-    if not -vv > 0.0:
+    if plane[1][7] < 4:     # degree 2: no second-derivative bound (ridge_bounds), no crest cell
         return -1, 0
+    ux, uy = axis_at(plane, cx, cy, r)
+    convex, ev = convex_across(plane, cx, cy, r, ux, uy, gx0, gy0, G, fslack, scratch)
+    if convex:
+        return -1, ev
+    vv, uu, uv = frame_at(plane, cx, cy, r, ux, uy, scratch)
+    if not -vv > 0.0:
+        return -1, ev
     curv = -vv
     fixed = 0.5 * np_maximum(uu, 0.0) * r * r
     best = _crest_bound(f0, gx0, gy0, G, ux, uy, r, fixed, uv, curv, fslack)
@@ -186,31 +232,33 @@ def ridge_at(plane, cx, cy, r, f0, gx0, gy0, G, thin2, fslack, scratch):
     f2, gx2, gy2 = field_at(plane, cx - t2 * uy, cy + t2 * ux, scratch)
     best = np_minimum(best, _crest_bound(f2, gx2, gy2, G, ux, uy, r, fixed, uv, curv, fslack))
     if best < 1.0:
-        return OUT, 2
+        return OUT, ev + 2
     if 8.0 * (best - 1.0) <= curv * thin2:
-        return THIN, 2
-    return -1, 2
+        return THIN, ev + 2
+    return -1, ev + 2
 
 
-#: how a cell gets its disc bounds (:func:`classify_at`): a root cell (cheap
-#: bounds, then full ones where those leave it neither IN nor OUT), a small
-#: cell (its parent's bounds), a larger cell (its parent's, then its own
-#: where those leave it unresolved)
-ROOT, INHERIT, OWN = 0, 1, 2
+#: how a cell gets its disc bounds (:func:`classify_at`): an arbitrary disc
+#: (cheap bounds, then full ones where those leave it neither IN nor OUT), a
+#: small cell (its parent's bounds), a larger cell (its parent's, then its own
+#: where those leave it unresolved), a root cell of the quadtree (the cheap
+#: bounds only: its children get their own where the cheap ones leave them
+#: unresolved)
+ROOT, INHERIT, OWN, CHEAP = 0, 1, 2, 3
 
 
 @inline_kernel
 def classify_at(plane, cx, cy, r, kind, G, H, U, tol, pieces, coarse, fslack, scratch):
     """State and Taylor data of one cell (:meth:`slicer.contours.cells._Bounds.classify`).
 
-    ``kind`` is ROOT, INHERIT or OWN; ``G, H, U`` are the parent's bounds
-    (unused for ROOT).
+    ``kind`` is ROOT, INHERIT, OWN or CHEAP; ``G, H, U`` are the parent's
+    bounds (unused for ROOT and CHEAP).
 
     Returns
     -------
     state, kappa, sx, sy, f, gx, gy, G, H, U, evaluations
     """
-    if kind == ROOT:
+    if kind == ROOT or kind == CHEAP:
         G, H, U = disc_at(plane, cx, cy, r, coarse, scratch)
     st, kp, sx, sy, f, gx, gy, ev = judge_at(plane, cx, cy, r, G, H, U, False, 0.0, 0.0, 0.0, tol, fslack,
                                              scratch)
@@ -234,7 +282,7 @@ def _cell(plane, cx, cy, rr, box, k, kind, parents, crests, settings, scratch):
     """
     pcx, pcy, pf, pgx, pgy, pG, pH, pU = parents
     if pcx.shape[0] == 0:
-        return _classified(plane, cx, cy, rr, box, ROOT, 0.0, 0.0, 0.0, crests, settings, scratch)
+        return _classified(plane, cx, cy, rr, box, CHEAP, 0.0, 0.0, 0.0, crests, settings, scratch)
     st = settle_one(pf[k], pgx[k], pgy[k], pG[k], pH[k], rr, cx - pcx[k], cy - pcy[k], settings[4])
     if st >= 0:
         return st, np.inf, 0.0, 0.0, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0, (np.nan, np.nan, np.nan, np.nan)

@@ -217,8 +217,21 @@ def _frame_disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, work):
     ux, uy, FVV, FUU, FUV : float
     """
     ux, uy = _nearest_axis(seg, lst, a, b, cx, cy, z, r, sigma)
+    vv, uu, uv = _frame_along(seg, lst, a, b, cx, cy, z, r, ux, uy, n, sigma, norm, k1, work)
+    return ux, uy, vv, uu, uv
+
+
+@unrefcounted_kernel
+def _frame_along(seg, lst, a, b, cx, cy, z, r, ux, uy, n, sigma, norm, k1, work):
+    """The bounds of :func:`_frame_disc` in the frame of the in-plane unit
+    direction ``u = (ux, uy)`` (:func:`_nearest_axis`'s, for those).
+
+    Returns
+    -------
+    FVV, FUU, FUV : float
+    """
     if n < 4:       # n = 2: the gradient jumps at the support's edge, no second-derivative bound
-        return ux, uy, np.inf, np.inf, np.inf
+        return np.inf, np.inf, np.inf
     vv = uu = uv = mag = 0.0
     for q in range(a, b):
         i = lst[q]
@@ -231,7 +244,7 @@ def _frame_disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, work):
         uv += fuv
         mag += mg
     pad = 4.0 * SLACK * mag
-    return ux, uy, vv + pad, uu + pad, (uv + pad) * (1.0 + SLACK)
+    return vv + pad, uu + pad, (uv + pad) * (1.0 + SLACK)
 
 
 def ridge_bounds(seg, ids, cx, cy, z, r, n, sigma, norm):
