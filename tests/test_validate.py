@@ -157,7 +157,7 @@ def test_error_time_sweep_small(tmp_path):
 
 def test_error_time_contours_compares_the_two_routes_on_one_grid(tmp_path):
     """``--contours PIXELS LAYERS`` runs the raster route and the guaranteed
-    contours, each at 1 and 10 um, on that grid, and the JSON says so."""
+    contours, each at 1, 10 and 0.1 um, on that grid, and the JSON says so."""
     from validation.error_time import main as error_time
 
     out = tmp_path / "et.json"
@@ -165,8 +165,8 @@ def test_error_time_contours_compares_the_two_routes_on_one_grid(tmp_path):
                        "--json", str(out)]) == 0
     res = json.loads(out.read_text())
     rows = res["rows"]
-    assert [(r["method"], r["tol"]) for r in rows] == [("interval", 1e-3), ("guaranteed", 1e-3),
-                                                      ("interval", 1e-2), ("guaranteed", 1e-2)]
+    assert [(r["method"], r["tol"]) for r in rows] == [(m, t) for t in (1e-3, 1e-2, 1e-4)
+                                                      for m in ("interval", "guaranteed")]
     assert {(r["pixels"], r["layers"]) for r in rows} == {(24, 12)}
     assert res["reference"]["pixels"] == 96 and "--contours" in res["command"]
     assert all(np.isfinite(r["error_layer"]) and r["seconds"] > 0 and r["evaluations"] > 0 for r in rows)

@@ -78,10 +78,11 @@ def default_sweep(quick: bool = False) -> list[dict]:
 
 
 def contour_sweep(pixels: int = 113, layers: int = 113) -> list[dict]:
-    """The two contour routes on one grid (``--contours``), each at 1 and 10 um:
-    the tracer's raster with root-refined contours, and the guaranteed contours."""
+    """The two contour routes on one grid (``--contours``), each at 1, 10 and
+    0.1 um: the tracer's raster with root-refined contours, and the guaranteed
+    contours."""
     base = {**BASE, "pixels": int(pixels), "layers": int(layers)}
-    return [{**base, "method": m, "tol": t} for t in (1e-3, 1e-2) for m in ("interval", "guaranteed")]
+    return [{**base, "method": m, "tol": t} for t in (1e-3, 1e-2, 1e-4) for m in ("interval", "guaranteed")]
 
 
 def square_box(skel):
