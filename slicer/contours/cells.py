@@ -210,7 +210,7 @@ def inherit_side(tol: float, s0: float) -> float:
     root cells' side ``s0``. Own bounds are tighter the larger the cell is
     against the struts, whatever the tolerance: with the tolerance alone, a
     coarse one (10 um) made every cell below the root take the root's bounds
-    (the octet's planes: 1.57 M cells instead of 0.84 M)."""
+    (octet at 0.1 mm, 10 um: 2.60 M cells instead of 1.66 M)."""
     return min(INHERIT_BELOW * tol, INHERIT_ROOT_FRACTION * s0)
 
 
