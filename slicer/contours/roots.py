@@ -4,16 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._kernels.brackets import bracket_points, bracket_update
+from .._kernels.crossings import MAX_ITER, distances, project_points, solve_segments
 from .._kernels.launch import serial
 from ..checks import positive_number
 from ..errors import GridError
-from ..field import evaluate, plane_field
+from ..field import PointGrid, evaluate, plane_field, plane_grid, point_grid
 from ..skeleton import Skeleton
-
-#: iterations of the bracketed solver before it gives up (bisection halves
-#: the bracket at least every other step, so 200 is far beyond need)
-MAX_ITER = 200
 
 #: relative error budget of one closed-form field evaluation (docs/math.md §2.6
 #: and the stiff-case suite: ~1e-13)
@@ -39,6 +35,30 @@ def _field(skel: Skeleton, points: np.ndarray, gradient: bool = False):
         return kern(skel, points, gradient)
 
 
+def field_tuple(skel: Skeleton, z: float | None = None) -> tuple:
+    """The field as the compiled root solvers take it
+    (:mod:`slicer._kernels.crossings`): the segment table with the support
+    grid of the plane ``z`` (None: of the whole skeleton; the values are the
+    same to the bit), half the kernel degree, ``1/σ²`` and the normalisation."""
+    if skel.n_segments == 0:      # no segment: F = 0 everywhere
+        table, grid = np.zeros((0, 10)), PointGrid(np.zeros(3), np.ones(3), np.ones(3, np.int64),
+                                                    np.zeros(2, np.int64), np.zeros(0, np.int64))
+    else:
+        table, grid = point_grid(skel)
+        if z is not None:
+            grid = plane_grid(skel, float(z))
+    return (table, grid.offsets, grid.ids, grid.origin, grid.cell, grid.dims, skel.degree // 2,
+            1.0 / skel.sigma**2, float(skel.normalisation))
+
+
+def _one_plane(a: np.ndarray, b: np.ndarray) -> float | None:
+    """The z all the points of ``a`` and ``b`` share, else None."""
+    if a.shape[0] == 0:
+        return None
+    z = a[0, 2]
+    return float(z) if np.all(a[:, 2] == z) and np.all(b[:, 2] == z) else None
+
+
 def _check_tol(tol) -> float:
     return positive_number(tol, "contour tolerance", GridError)
 
@@ -59,9 +79,9 @@ def solve_crossings(skel: Skeleton, a: np.ndarray, b: np.ndarray, tol: float,
     (ε: the evaluation's error budget, ``FIELD_SLACK (1 + |F|)``); once the
     intersection of these intervals with the bracket is at most ``tol``
     long, its midpoint is the answer, within ``tol/2`` of the root (no
-    evaluation at all where the values at the ends already prove it). Every
-    iteration evaluates the field at all unfinished segments in one
-    compiled batch.
+    evaluation at all where the values at the ends already prove it). The
+    segments are solved one after another in compiled code
+    (:func:`slicer._kernels.crossings.solve_segments`).
 
     Parameters
     ----------
@@ -88,55 +108,15 @@ def solve_crossings(skel: Skeleton, a: np.ndarray, b: np.ndarray, tol: float,
     a = np.ascontiguousarray(a, dtype=np.float64)
     b = np.ascontiguousarray(b, dtype=np.float64)
     n = a.shape[0]
-    evals = 0
-    if fa is None:
-        fa = _field(skel, a)[0]
-        evals += n
-    if fb is None:
-        fb = _field(skel, b)[0]
-        evals += n
-    d = b - a
-    length = np.sqrt((d * d).sum(axis=1))
-    glo = fa - 1.0
-    ghi = fb - 1.0
-    bracketed = (glo >= 0.0) & (ghi < 0.0)
-    lo = np.zeros(n)
-    hi = np.ones(n)
-    t = np.where(np.abs(glo) <= np.abs(ghi), 0.0, 1.0)
-    side = np.zeros(n, np.int8)          # last end moved: +1 lo, -1 hi
-    with np.errstate(divide="ignore"):
-        tol_t = np.where(length > 0, tol / length, 1.0)
-    width1 = hi - lo                      # bracket width one and two steps ago
-    width2 = hi - lo
-    # interval proved by the slope bound, in t; (clo, chi) = (0, 1) without one
-    clo = np.zeros(n)
-    chi = np.ones(n)
-    if slope is not None:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            reach_t = np.where((slope > 0) & (length > 0), 1.0 / (slope * length), np.inf)
-        ea = (np.abs(glo) + FIELD_SLACK * (1.0 + np.abs(fa))) * reach_t
-        eb = (np.abs(ghi) + FIELD_SLACK * (1.0 + np.abs(fb))) * reach_t
-        chi = np.minimum(chi, ea)
-        clo = np.maximum(clo, 1.0 - eb)
-    proved = bracketed & ((chi - clo) * length <= tol)
-    act = np.flatnonzero(bracketed & (length > tol) & ~proved)
-    t[bracketed] = np.where(glo[bracketed] == 0.0, 0.0, 0.5)
-    pf = np.flatnonzero(proved & (length > tol) & (glo != 0.0))
-    t[pf] = 0.5 * (clo[pf] + chi[pf])
-    if slope is None:
-        reach_t = np.full(n, np.inf)        # proves nothing: (clo, chi) stay (0, 1)
-    br = (lo, hi, glo, ghi, side, width1, width2, clo, chi, t)
-    it = 0
-    while act.size and it < MAX_ITER:
-        it += 1
-        tm, pts = bracket_points(act, br, tol_t, it, a, d)
-        f = _field(skel, pts)[0]
-        evals += act.size
-        act = bracket_update(act, tm, f, br, reach_t, length, float(tol), FIELD_SLACK)
-    if act.size:   # pragma: no cover - the bisection safeguard makes this unreachable
-        t[act] = 0.5 * (lo[act] + hi[act])
-    return a + t[:, None] * d, t, bracketed, evals
-
+    if n == 0:
+        return a.copy(), np.zeros(0), np.zeros(0, bool), 0
+    known = (fa is not None, fb is not None)
+    fa = np.zeros(n) if fa is None else np.ascontiguousarray(fa, dtype=np.float64)
+    fb = np.zeros(n) if fb is None else np.ascontiguousarray(fb, dtype=np.float64)
+    slope = np.zeros(n) if slope is None else np.ascontiguousarray(slope, dtype=np.float64)
+    t, bracketed, evals = solve_segments(field_tuple(skel, _one_plane(a, b)), a, b, (fa, fb, *known), slope,
+                                         float(tol), FIELD_SLACK)
+    return a + t[:, None] * (b - a), t, bracketed, int(evals)
 
 
 def plane_distance(skel: Skeleton, xy: np.ndarray, z: float):
@@ -155,13 +135,7 @@ def plane_distance(skel: Skeleton, xy: np.ndarray, z: float):
     f : (n,) float64
     gxy : (n, 2) float64, 1/mm
     """
-    p = np.column_stack([xy, np.full(xy.shape[0], float(z))])
-    f, g = _field(skel, p, gradient=True)
-    gxy = g[:, :2]
-    gn = np.hypot(gxy[:, 0], gxy[:, 1])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dist = np.where(gn > 0, np.abs(f - 1.0) / gn, np.inf)
-    return dist, f, gxy
+    return distances(field_tuple(skel, z), np.ascontiguousarray(xy, dtype=np.float64), float(z))
 
 
 def project_to_contour(skel: Skeleton, xy: np.ndarray, z: float, tol: float, reach=None):
@@ -195,38 +169,11 @@ def project_to_contour(skel: Skeleton, xy: np.ndarray, z: float, tol: float, rea
         :func:`plane_distance` of the points.
     evaluations : int
     """
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
     n = xy.shape[0]
-    dist, f, gxy = plane_distance(skel, xy, z)
-    gn = np.hypot(gxy[:, 0], gxy[:, 1])
-    usable = np.isfinite(dist)
-    r = np.where(usable, 3.0 * np.where(usable, dist, 0.0) + tol, 0.0)
-    if reach is not None:
-        r = np.minimum(r, reach)
-    nrm = gxy / np.where(gn > 0, gn, 1.0)[:, None]          # toward growing F: inward
-    zz = np.full(n, float(z))
-    A = np.column_stack([xy + r[:, None] * nrm, zz])
-    B = np.column_stack([xy - r[:, None] * nrm, zz])
-    roots = xy.copy()
-    ok = np.zeros(n, bool)
-    evals = n
-    idx = np.flatnonzero(usable & (r > 0))
-    # the Newton point, bracketed tol/2 either side (within the search segment)
-    near = idx[dist[idx] + 0.5 * tol <= r[idx]]
-    if near.size:
-        step = ((1.0 - f[near]) / gn[near])[:, None] * nrm[near]
-        half = 0.4999 * tol * nrm[near]          # a bracket just under tol: its midpoint, no iteration
-        pts, _, br, ne = solve_crossings(skel, np.column_stack([xy[near] + step + half, zz[near]]),
-                                         np.column_stack([xy[near] + step - half, zz[near]]), tol)
-        evals += ne
-        roots[near[br]] = pts[br, :2]
-        ok[near[br]] = True
-        idx = np.setdiff1d(idx, near[br], assume_unique=True)
-    if idx.size:
-        pts, _, br, ne = solve_crossings(skel, A[idx], B[idx], tol)
-        evals += ne
-        roots[idx[br]] = pts[br, :2]
-        ok[idx[br]] = True
-    return roots, ok, dist, evals
+    reach = np.full(n, np.inf) if reach is None else np.ascontiguousarray(reach, dtype=np.float64)
+    roots, ok, dist, evals = project_points(field_tuple(skel, z), xy, float(z), float(tol), reach, FIELD_SLACK)
+    return roots, ok, dist, int(evals)
 
 
 __all__ = ["solve_crossings", "plane_distance", "project_to_contour", "MAX_ITER", "SERIAL_BATCH"]

@@ -6,8 +6,9 @@ import numpy as np
 import shapely
 from shapely.geometry.polygon import orient
 
+from .._kernels.refine import refine_chords
 from ..skeleton import Skeleton
-from .roots import plane_distance, project_to_contour
+from .roots import FIELD_SLACK, field_tuple
 
 
 #: chords are split until their midpoint is within this fraction of ``tol``
@@ -22,10 +23,13 @@ def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
     """Subdivide chords that stray more than ``tol / 2`` from the surface.
 
     The distance of a chord's quarter points and midpoint to the contour is
-    estimated in the layer plane (:func:`plane_distance`). A chord above ``tol`` is split
-    into about ``sqrt(dist / tol)`` pieces whose new vertices are put on the
-    contour (:func:`project_to_contour`, at most a quarter of the chord away,
-    so rings stay simple); a point whose root cannot be bracketed is dropped.
+    estimated in the layer plane (:func:`slicer.contours.roots.plane_distance`).
+    A chord above ``tol`` is split into about ``sqrt(dist / tol)`` pieces whose
+    new vertices are put on the contour
+    (:func:`slicer.contours.roots.project_to_contour`, at most a quarter of the
+    chord away, so rings stay simple); a point whose root cannot be bracketed
+    is dropped. One compiled call does every round
+    (:func:`slicer._kernels.refine.refine_chords`).
 
     Parameters
     ----------
@@ -50,65 +54,18 @@ def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
     """
     if not rings:
         return rings
-    sizes = np.array([r.shape[0] for r in rings])
-    xy = np.concatenate(rings)
-    ring_of = np.repeat(np.arange(len(rings)), sizes)
-    done = np.concatenate(certified) if certified is not None else np.zeros(xy.shape[0], bool)
-    added = 0
-    evals = 0
-    checks = 0
-    for _ in range(max_rounds):
-        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-        nxt = np.arange(xy.shape[0]) + 1
-        nxt[starts + sizes - 1] = starts
-        p, q = xy, xy[nxt]
-        chord = np.hypot(*(q - p).T)
-        todo = np.flatnonzero(~done & (chord > 2 * tol))
-        if todo.size == 0:
-            break
-        # quarter points too: on a chord across varying curvature the largest
-        # deviation need not be at the midpoint
-        fr = np.array([0.25, 0.5, 0.75])[None, :, None]
-        pt, qt = p[todo], q[todo]
-        m3 = (pt[:, None, :] + fr * (qt - pt)[:, None, :]).reshape(-1, 2)
-        dist = np.full(xy.shape[0], 0.0)
-        dist[todo] = plane_distance(skel, m3, z)[0].reshape(-1, 3).max(axis=1)
-        evals += m3.shape[0]
-        checks += m3.shape[0]
-        bad = todo[~(dist[todo] <= CHORD_FRACTION * tol)]
-        done[todo] = True                    # checked: fine, or split below
-        done[bad] = False
-        if bad.size == 0:
-            break
-        # a chord's sagitta shrinks as its length squared: split it into
-        # about sqrt(dist / tol) pieces at once (fewer rounds, fewer launches)
-        with np.errstate(invalid="ignore"):
-            goal = CHORD_FRACTION * tol
-            nsub = np.clip(np.ceil(1.2 * np.sqrt(np.where(np.isfinite(dist[bad]), dist[bad], 4 * goal) / goal)),
-                           2, 64).astype(np.int64)
-        owner = np.repeat(bad, nsub - 1)
-        j = np.arange(owner.size) - np.repeat(np.cumsum(nsub - 1) - (nsub - 1), nsub - 1) + 1
-        frac = j / np.repeat(nsub, nsub - 1)
-        cand = p[owner] + frac[:, None] * (q[owner] - p[owner])
-        roots, ok, _, ne = project_to_contour(skel, cand, z, tol, reach=0.25 * chord[owner])
-        evals += ne
-        if not ok.any():
-            break
-        ins = owner[ok]
-        # insert the new vertices after vertex ``ins``, in order along the chord
-        pos = np.concatenate([np.arange(xy.shape[0]), ins])
-        sub = np.concatenate([np.zeros(xy.shape[0], np.int64), j[ok]])
-        order = np.lexsort((sub, pos))
-        xy = np.concatenate([xy, roots[ok]])[order]
-        ring_of = np.concatenate([ring_of, ring_of[ins]])[order]
-        done = np.concatenate([done, np.zeros(ins.size, bool)])[order]
-        sizes = np.bincount(ring_of, minlength=len(rings))
-        added += ins.size
+    xy = np.ascontiguousarray(np.concatenate(rings), dtype=np.float64)
+    ring_of = np.repeat(np.arange(len(rings), dtype=np.int64), [r.shape[0] for r in rings])
+    done = np.concatenate(certified).astype(bool) if certified is not None else np.zeros(xy.shape[0], bool)
+    xy, ring_of, (added, evals, checks) = refine_chords(field_tuple(skel, z), xy, ring_of, done, float(z),
+                                                        (float(tol), CHORD_FRACTION * tol), int(max_rounds),
+                                                        FIELD_SLACK)
     if stats is not None:
-        stats["refined"] = stats.get("refined", 0) + added
-        stats["evaluations"] = stats.get("evaluations", 0) + evals
-        stats["check_evaluations"] = stats.get("check_evaluations", 0) + checks
-        stats["projection_evaluations"] = stats.get("projection_evaluations", 0) + evals - checks
+        stats["refined"] = stats.get("refined", 0) + int(added)
+        stats["evaluations"] = stats.get("evaluations", 0) + int(evals)
+        stats["check_evaluations"] = stats.get("check_evaluations", 0) + int(checks)
+        stats["projection_evaluations"] = stats.get("projection_evaluations", 0) + int(evals - checks)
+    sizes = np.bincount(ring_of, minlength=len(rings))
     bounds = np.concatenate([[0], np.cumsum(sizes)])
     return [xy[bounds[q]:bounds[q + 1]] for q in range(len(rings))]
 
