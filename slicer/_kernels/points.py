@@ -6,9 +6,10 @@ import math
 import numpy as np
 from numba import prange
 
-from .._jit import inline_kernel, parallel_kernel
+from .._jit import inline_kernel, parallel_kernel, unrefcounted_kernel
 from .borrow import borrow, keep_alive
-from .field import SCRATCH, segment_eval
+from .field import (AX, AY, AZ, HALF_LANES, LANE_TAG, LANES, LEN, SCRATCH, TAU1, UX, UY, UZ, lane_copy, lane_load, lane_result,
+                    segment_eval, segment_half_lanes, segment_lanes)
 
 
 @parallel_kernel
@@ -56,25 +57,114 @@ def field_at_points(points, seg, offsets, ids, origin, cell, dims, m, inv_s2, no
     return f, g
 
 
+#: fewest segments in a point's list for which the default kernel (n = 6)
+#: evaluates them side by side in vector lanes (:func:`_lanes_sum`)
+POINT_LANES_FROM = 2
+
+
 @inline_kernel
 def point_field(seg, offsets, ids, origin, cell, dims, m, inv_s2, norm, grad, scratch, px, py, pz):
     """Field and gradient ``(f, gx, gy, gz)`` at one point: the sum over the
     segments binned in its grid cell (:func:`field_at_points`; zeros outside
-    the grid)."""
+    the grid). With the default kernel (``m = 3``) and ``POINT_LANES_FROM`` or
+    more segments listed, they are evaluated in vector lanes
+    (:func:`_lanes_sum`): the same values to the bit."""
     ix = int(math.floor((px - origin[0]) / cell[0]))
     iy = int(math.floor((py - origin[1]) / cell[1]))
     iz = int(math.floor((pz - origin[2]) / cell[2]))
+    if ix < 0 or iy < 0 or iz < 0 or ix >= dims[0] or iy >= dims[1] or iz >= dims[2]:
+        return 0.0, 0.0, 0.0, 0.0
+    cidx = (iz * dims[1] + iy) * dims[0] + ix
+    a = offsets[cidx]
+    b = offsets[cidx + 1]
+    if m == 3 and b - a >= POINT_LANES_FROM:
+        return _lanes_sum(seg, ids, a, b, inv_s2, norm, grad, scratch, (px, py, pz))
     sf = 0.0
     sx = 0.0
     sy = 0.0
     sz = 0.0
-    if ix < 0 or iy < 0 or iz < 0 or ix >= dims[0] or iy >= dims[1] or iz >= dims[2]:
-        return sf, sx, sy, sz
-    cidx = (iz * dims[1] + iy) * dims[0] + ix
-    for r in range(offsets[cidx], offsets[cidx + 1]):
+    for r in range(a, b):
         fi, gx, gy, gz = segment_eval(seg, ids[r], px, py, pz, m, inv_s2, norm, grad, scratch)
         sf += fi
         sx += gx
         sy += gy
         sz += gz
+    return sf, sx, sy, sz
+
+
+#: relative margin of :func:`may_reach` (the rounding of its few operations is ~1e-15)
+REACH_SLACK = 1e-9
+
+
+@inline_kernel
+def may_reach(seg, i, px, py, pz, inv_s2):
+    """False only where ``p`` is farther from segment ``i``'s axis than its
+    largest support radius ``σ τ1`` (the radius grows from ``a`` to ``b``):
+    every support ball misses ``p``, whose field and gradient from this
+    segment are then exactly zero. The margin ``REACH_SLACK (σ² τ1² + |p − a|²)``
+    on the squared distance is far above its rounding."""
+    wx = px - seg[i, AX]
+    wy = py - seg[i, AY]
+    wz = pz - seg[i, AZ]
+    t = min(max(wx * seg[i, UX] + wy * seg[i, UY] + wz * seg[i, UZ], 0.0), seg[i, LEN])
+    dx = wx - t * seg[i, UX]
+    dy = wy - t * seg[i, UY]
+    dz = wz - t * seg[i, UZ]
+    big2 = seg[i, TAU1] * seg[i, TAU1] / inv_s2
+    return dx * dx + dy * dy + dz * dz - big2 <= REACH_SLACK * (big2 + wx * wx + wy * wy + wz * wz)
+
+
+@unrefcounted_kernel
+def _lanes_sum(seg, ids, a, b, inv_s2, norm, grad, scratch, p):
+    """The sum of :func:`point_field` over the segments ``ids[a:b]`` (n = 6) at
+    ``p``: those that :func:`may_reach` it (the others add exactly zero) are
+    loaded in list order and evaluated ``LANES`` at a time, a last group of
+    ``HALF_LANES`` or fewer in half the lanes, a last lone one by
+    :func:`segment_eval` (lanes flagged ``redo`` too), and summed in list
+    order, so the values are the loop's to the bit. The gradient is summed
+    only with ``grad`` (the lanes always compute it; the loop's is then zero)."""
+    px, py, pz = p
+    acc = (0.0, 0.0, 0.0, 0.0)
+    k = 0
+    for r in range(a, b):
+        i = ids[r]
+        if not may_reach(seg, i, px, py, pz, inv_s2):
+            continue
+        lane_load(scratch, k, seg, i)
+        scratch[LANE_TAG + k] = i
+        k += 1
+        if k == LANES:
+            acc = _lanes_done(seg, k, inv_s2, norm, grad, scratch, p, acc)
+            k = 0
+    if k > 0:
+        acc = _lanes_done(seg, k, inv_s2, norm, grad, scratch, p, acc)
+    return acc
+
+
+@inline_kernel
+def _lanes_done(seg, k, inv_s2, norm, grad, scratch, p, acc):
+    """``acc = (f, gx, gy, gz)`` plus the first ``k`` loaded lanes' values
+    (:func:`_lanes_sum`), in lane order."""
+    px, py, pz = p
+    sf, sx, sy, sz = acc
+    if k == 1:
+        fi, gx, gy, gz = segment_eval(seg, int(scratch[LANE_TAG]), px, py, pz, 3, inv_s2, norm, grad, scratch)
+        return sf + fi, sx + gx, sy + gy, sz + gz
+    width = HALF_LANES if k <= HALF_LANES else LANES
+    for j in range(k, width):
+        lane_copy(scratch, 0, j)
+    if width == HALF_LANES:
+        segment_half_lanes(scratch, px, py, pz, inv_s2, norm)
+    else:
+        segment_lanes(scratch, px, py, pz, inv_s2, norm)
+    for j in range(k):
+        fi, gx, gy, gz, redo = lane_result(scratch, j)
+        if redo:
+            fi, gx, gy, gz = segment_eval(seg, int(scratch[LANE_TAG + j]), px, py, pz, 3, inv_s2, norm, grad,
+                                          scratch)
+        sf += fi
+        if grad:
+            sx += gx
+            sy += gy
+            sz += gz
     return sf, sx, sy, sz
