@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import quadtree_reference as ref
 from sample_lattices import load_sample
@@ -157,3 +159,20 @@ def test_compiled_crossing_pairs_are_the_numpy_ones(name, z, tol):
         assert np.array_equal(a, w)
     assert got[0].size > 0 and (got[1] >= 0).all()
     assert np.array_equal(cells.next_in_group(leaf), ref._next_in_group(leaf))
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 40), st.integers(0, 40), st.floats(-2.0, 3.0)), max_size=60),
+       st.lists(st.tuples(st.integers(0, 40), st.integers(0, 40)), min_size=1, max_size=60))
+def test_known_values_take_the_first_entry_of_each_point(known, points):
+    """The walks' lattice points get the value of the first known entry at
+    the same point (repeated points included), NaN where none is known."""
+    first: dict = {}
+    for x, y, f in known:
+        first.setdefault((x, y), f)
+    kx, ky, kf = (np.array([k[c] for k in known], dtype) for c, dtype in ((0, np.int64), (1, np.int64), (2, float)))
+    px = np.array([p[0] for p in points], np.int64)
+    py = np.array([p[1] for p in points], np.int64)
+    got = cells._known_values(px, py, kx.reshape(-1), ky.reshape(-1), kf.reshape(-1))
+    want = np.array([first.get(p, np.nan) for p in points])
+    assert np.array_equal(got, want, equal_nan=True)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import inline_kernel, kernel
 from .order import stable_order
 
 
@@ -166,6 +166,42 @@ def leaf_walks(X0, Y0, X1, Y1, passes):
             w += 1
         leaf[start:w] = i
     return px, py, leaf, point
+
+
+@inline_kernel
+def _slot(x, y, mask):
+    """Hash slot of the lattice point ``(x, y)`` in a table of ``mask + 1`` slots."""
+    return ((x * 0x9E3779B1) ^ (y * 0x85EBCA77) ^ (x >> 7)) & mask
+
+
+@kernel
+def known_values(px, py, kx, ky, kf):
+    """The field at the lattice points ``(px, py)`` ((v,) int64) where a
+    point ``(kx, ky)`` ((k,) int64) holds it (``kf``; the first such entry),
+    NaN elsewhere, (v,) float64: a hash table of the known points (open
+    addressing, linear probing)."""
+    k = kx.shape[0]
+    size = 2
+    while size < 2 * k:
+        size *= 2
+    mask = size - 1
+    slots = np.full(size, -1, np.int64)
+    for j in range(k):
+        h = _slot(kx[j], ky[j], mask)
+        while slots[h] >= 0 and not (kx[slots[h]] == kx[j] and ky[slots[h]] == ky[j]):
+            h = (h + 1) & mask
+        if slots[h] < 0:
+            slots[h] = j
+    out = np.full(px.shape[0], np.nan)
+    for i in range(px.shape[0]):
+        h = _slot(px[i], py[i], mask)
+        while slots[h] >= 0:
+            s = slots[h]
+            if kx[s] == px[i] and ky[s] == py[i]:
+                out[i] = kf[s]
+                break
+            h = (h + 1) & mask
+    return out
 
 
 @kernel

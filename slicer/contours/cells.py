@@ -39,12 +39,11 @@ import numpy as np
 from .._kernels.binning import bin_boxes
 from .._kernels.cellbounds import PIECES, SLACK
 from .._kernels.cellstate import IN, ONEDIR, OUT, SIMPLE, SMALL, THIN  # noqa: F401 (the leaf states, re-exported)
-from .._kernels.contours import chain_rings, leaf_walks, next_in_group, pair_crossings
+from .._kernels.contours import chain_rings, known_values, leaf_walks, next_in_group, pair_crossings
 from .._kernels.order import DIGIT_BITS
 from .._kernels.quadtree import classify_cells, plane_data, quadtree, ridge_cells
 from ..errors import OptionError
 from ..field import plane_footprints, plane_grid, point_grid, support_boxes
-from ..ordering import stable_argsort
 from ..skeleton import Skeleton
 from .roots import FIELD_SLACK, _field, solve_crossings
 from .simplify import CHORD_FRACTION
@@ -246,20 +245,11 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
     return X0, Y0, X0 + size, Y0 + size, state, kappa, slope, int(cells), (kx, ky, kf)
 
 
-def _known_values(px, py, kx, ky, kf, ymax: int) -> np.ndarray:
-    """Field at lattice points ``(px, py)`` where ``(kx, ky)`` holds it (``kf``), NaN elsewhere."""
-    out = np.full(px.size, np.nan)
-    if kx.size == 0:
-        return out
-    big = np.int64(ymax + 1)
-    key = kx * big + ky
-    order = stable_argsort(key)
-    key = key[order]
-    want = px * big + py
-    j = np.minimum(np.searchsorted(key, want), key.size - 1)
-    hit = key[j] == want
-    out[hit] = kf[order[j[hit]]]
-    return out
+def _known_values(px, py, kx, ky, kf) -> np.ndarray:
+    """Field at lattice points ``(px, py)`` where ``(kx, ky)`` holds it (``kf``), NaN elsewhere
+    (:func:`slicer._kernels.contours.known_values`)."""
+    f = np.ascontiguousarray
+    return known_values(f(px, np.int64), f(py, np.int64), f(kx, np.int64), f(ky, np.int64), f(kf, np.float64))
 
 
 def _boundary_walks(X0, Y0, X1, Y1):
@@ -376,7 +366,7 @@ def _plane_rings(skel, z, tol, ids, root_cell, certified, st) -> list[np.ndarray
     px, py, leaf, point = _boundary_walks(X0[act], Y0[act], X1[act], Y1[act])
     h = s0 / 2.0 ** levels
     wx, wy = x0 + px * h, y0 + py * h
-    f = _known_values(px, py, *known, ny << levels)
+    f = _known_values(px, py, *known)
     todo = np.flatnonzero(np.isnan(f))
     f[todo] = _field(skel, np.column_stack([wx[todo], wy[todo], np.full(todo.size, z)]))[0]
     st["evaluations"] += todo.size

@@ -37,10 +37,10 @@ def rings_to_multipolygon(rings: list[np.ndarray]):
     area = signed_areas(rings)
     outer = np.flatnonzero(area > 0)
     holes = np.flatnonzero(area < 0)
-    shells = [shapely.Polygon(rings[q]) for q in outer]
-    owned: list[list[np.ndarray]] = [[] for _ in outer]
+    lrs = as_linearrings(rings)
+    owned: list[list[int]] = [[] for _ in outer]
     if holes.size and outer.size:
-        tree = shapely.STRtree(shells)
+        tree = shapely.STRtree(shapely.polygons(lrs[outer]))
         probe = shapely.points(np.array([rings[q][0] for q in holes]))
         hi, oi = tree.query(probe, predicate="within")
         best = np.full(holes.size, -1)
@@ -49,9 +49,18 @@ def rings_to_multipolygon(rings: list[np.ndarray]):
                 best[h] = o
         for h, o in enumerate(best):
             if o >= 0:
-                owned[o].append(rings[holes[h]])
-    polys = [shapely.Polygon(rings[q], owned[s]) for s, q in enumerate(outer)]
-    return shapely.MultiPolygon(polys)
+                owned[o].append(holes[h])
+    # each polygon's shell, then its holes, in one call
+    parts = [[q, *owned[s]] for s, q in enumerate(outer)]
+    which = np.repeat(np.arange(len(parts)), [len(p) for p in parts])
+    polys = shapely.polygons(lrs[np.concatenate(parts)], indices=which)
+    return shapely.MultiPolygon(list(polys))
+
+
+def as_linearrings(rings: list[np.ndarray]) -> np.ndarray:
+    """Rings of three or more vertices as shapely LinearRings (closed), in one call, (r,) object."""
+    sizes = [r.shape[0] for r in rings]
+    return shapely.linearrings(np.concatenate(rings), indices=np.repeat(np.arange(len(rings)), sizes))
 
 
 
@@ -63,4 +72,4 @@ def _polygons_only(geom):
     return shapely.MultiPolygon([orient(p, 1.0) for p in polys])
 
 
-__all__ = ["signed_areas", "rings_to_multipolygon"]
+__all__ = ["signed_areas", "rings_to_multipolygon", "as_linearrings"]

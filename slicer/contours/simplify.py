@@ -8,6 +8,7 @@ from shapely.geometry.polygon import orient
 
 from .._kernels.refine import refine_chords
 from ..skeleton import Skeleton
+from .rings import as_linearrings
 from .roots import FIELD_SLACK, field_tuple
 
 
@@ -113,7 +114,7 @@ def _keep_simple(refined: list[np.ndarray], raw: list[np.ndarray], stats: dict) 
     (counted in ``stats["unrefined_rings"]``)."""
     if not refined:
         return refined
-    lr = np.array([shapely.LinearRing(r) for r in refined], dtype=object)
+    lr = as_linearrings(refined)
     bad = ~shapely.is_simple(lr)
     tree = shapely.STRtree(lr)
     i, j = tree.query(lr, predicate="intersects")
