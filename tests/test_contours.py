@@ -282,6 +282,24 @@ def test_signed_areas_of_known_rings():
     assert signed_areas([]).shape == (0,)
 
 
+def test_rings_become_polygons_with_each_hole_in_the_smallest_shell_around_it():
+    """Two nested shells and a separate one; a hole inside the inner shell goes
+    to it, not to the outer; clockwise rings alone fill nothing; rings with
+    fewer than three vertices are dropped."""
+    def square(x, y, s, ccw=True):
+        r = np.array([[x, y], [x + s, y], [x + s, y + s], [x, y + s]], float)
+        return r if ccw else r[::-1].copy()
+
+    outer, inner, apart = square(0, 0, 10), square(2, 2, 4), square(20, 0, 3)
+    gap, hole = square(1, 1, 8, ccw=False), square(3, 3, 1, ccw=False)
+    mp = rings_to_multipolygon([outer, gap, inner, hole, apart, np.zeros((2, 2))])
+    assert mp.is_valid and len(mp.geoms) == 3
+    areas = sorted((p.area, len(p.interiors)) for p in mp.geoms)
+    assert areas == [(9.0, 0), (15.0, 1), (36.0, 1)]          # 4x4 - 1x1, 10x10 - 8x8, 3x3
+    assert rings_to_multipolygon([gap, hole]).is_empty
+    assert rings_to_multipolygon([]).is_empty
+
+
 def test_simplify_keeps_the_holes_plain_douglas_peucker_would_drop():
     """The fast plain Douglas-Peucker result is kept only when it is valid
     with every ring: here it collapses the small hole in an outward bump

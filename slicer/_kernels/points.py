@@ -8,8 +8,8 @@ from numba import prange
 
 from .._jit import inline_kernel, parallel_kernel, unrefcounted_kernel
 from .borrow import borrow, keep_alive
-from .field import (AX, AY, AZ, HALF_LANES, LANE_TAG, LANES, LEN, SCRATCH, TAU1, UX, UY, UZ, lane_copy, lane_load, lane_result,
-                    segment_eval, segment_half_lanes, segment_lanes)
+from .field import (AX, AY, AZ, HALF_LANES, LANE_TAG, LANES, LEN, SCRATCH, TAU1, UX, UY, UZ, lane_copy, lane_load,
+                    lane_result, segment_eval, segment_half_lanes, segment_lanes)
 
 
 @parallel_kernel

@@ -37,6 +37,8 @@ def rings_to_multipolygon(rings: list[np.ndarray]):
     area = signed_areas(rings)
     outer = np.flatnonzero(area > 0)
     holes = np.flatnonzero(area < 0)
+    if outer.size == 0:                    # holes alone (or flat rings): nothing to fill
+        return shapely.MultiPolygon()
     lrs = as_linearrings(rings)
     owned: list[list[int]] = [[] for _ in outer]
     if holes.size and outer.size:
