@@ -805,3 +805,17 @@ def segment_half_lanes(scratch, px, py, pz, inv_s2, norm):
     """:func:`segment_lanes` over lanes 0 .. HALF_LANES - 1 only."""
     for k in range(HALF_LANES):
         _lane(scratch, k, px, py, pz, inv_s2, norm)
+
+
+@inline_kernel
+def segment_first_lanes(scratch, k, px, py, pz, inv_s2, norm):
+    """:func:`segment_lanes` of the first ``k`` loaded lanes (2 .. LANES):
+    ``HALF_LANES`` or fewer in half the lanes, the unused lanes of the width
+    evaluated repeating the first."""
+    width = HALF_LANES if k <= HALF_LANES else LANES
+    for j in range(k, width):
+        lane_copy(scratch, 0, j)
+    if width == HALF_LANES:
+        segment_half_lanes(scratch, px, py, pz, inv_s2, norm)
+    else:
+        segment_lanes(scratch, px, py, pz, inv_s2, norm)

@@ -8,8 +8,8 @@ from numba import prange
 
 from .._jit import inline_kernel, parallel_kernel, unrefcounted_kernel
 from .borrow import borrow, keep_alive
-from .field import (AX, AY, AZ, HALF_LANES, LANE_TAG, LANES, LEN, SCRATCH, TAU1, UX, UY, UZ, lane_copy, lane_load,
-                    lane_result, segment_eval, segment_half_lanes, segment_lanes)
+from .field import (AX, AY, AZ, LANE_TAG, LANES, LEN, SCRATCH, TAU1, UX, UY, UZ, lane_load, lane_result, segment_eval,
+                    segment_first_lanes)
 
 
 @parallel_kernel
@@ -150,13 +150,7 @@ def _lanes_done(seg, k, inv_s2, norm, grad, scratch, p, acc):
     if k == 1:
         fi, gx, gy, gz = segment_eval(seg, int(scratch[LANE_TAG]), px, py, pz, 3, inv_s2, norm, grad, scratch)
         return sf + fi, sx + gx, sy + gy, sz + gz
-    width = HALF_LANES if k <= HALF_LANES else LANES
-    for j in range(k, width):
-        lane_copy(scratch, 0, j)
-    if width == HALF_LANES:
-        segment_half_lanes(scratch, px, py, pz, inv_s2, norm)
-    else:
-        segment_lanes(scratch, px, py, pz, inv_s2, norm)
+    segment_first_lanes(scratch, k, px, py, pz, inv_s2, norm)
     for j in range(k):
         fi, gx, gy, gz, redo = lane_result(scratch, j)
         if redo:

@@ -22,8 +22,7 @@ import math
 import numpy as np
 
 from .._jit import inline_kernel, kernel, unrefcounted_kernel
-from .field import (HALF_LANES, LANE_TAG, LANES, SCRATCH, lane_copy, lane_load, lane_result, segment_eval,
-                    segment_half_lanes, segment_lanes)
+from .field import LANE_TAG, LANES, SCRATCH, lane_load, lane_result, segment_eval, segment_first_lanes
 from .raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz
 
 #: relative pad of every verdict "F > 1" / "F < 1" from bounds: a bound must
@@ -332,13 +331,7 @@ def _lanes_done(seg, hprim, sarr, k, ray, t, kp, scratch, F, FP, row, ct, cf, cf
     px = ox + t * dx
     py = oy + t * dy
     pz = oz + t * dz
-    width = HALF_LANES if k <= HALF_LANES else LANES
-    for j in range(k, width):
-        lane_copy(scratch, 0, j)
-    if width == HALF_LANES:
-        segment_half_lanes(scratch, px, py, pz, inv_s2, norm)
-    else:
-        segment_lanes(scratch, px, py, pz, inv_s2, norm)
+    segment_first_lanes(scratch, k, px, py, pz, inv_s2, norm)
     for j in range(k):
         s = int(scratch[LANE_TAG + j])
         r = sarr[s]
