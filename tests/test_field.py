@@ -36,6 +36,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from numba import njit
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
@@ -45,7 +47,7 @@ from slicer import Skeleton  # noqa: E402
 from slicer.field import point_grid, segment_table  # noqa: E402
 from slicer._kernels.field import (HALF_LANES, LANES, SCRATCH, lane_copy, lane_load, lane_result,  # noqa: E402
                                    segment_eval, segment_half_lanes, segment_lanes, support_interval)
-from slicer._kernels.points import may_reach, point_field  # noqa: E402
+from slicer._kernels.points import REACH_SLACK, may_reach, point_field  # noqa: E402
 from slicer._kernels.rays import eval_along  # noqa: E402
 from slicer._kernels.raysupport import H_TIN, H_TOUT, NHIT  # noqa: E402
 
@@ -950,3 +952,40 @@ def test_a_segment_out_of_reach_has_an_empty_support(name):
     assert (empty[~reach] & zero[~reach]).all(), name
     far = p + 10.0 * SIG * np.maximum(ta, tb)[:, None] + np.abs(b - a)
     assert not _reach_and_support(table, np.ascontiguousarray(far), 1.0 / SIG**2)[0].any()
+
+
+_unit3 = st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)).filter(
+    lambda v: sum(x * x for x in v) > 0.01)
+
+
+@settings(max_examples=400, deadline=None, derandomize=True)
+@given(_unit3, _unit3, st.sampled_from([1e-3, 1.0, 1e3]), st.sampled_from([0.0, 5000.0]),
+       st.floats(0.01, 20.0), st.floats(0.02, 1.0), st.floats(0.02, 1.0), st.floats(-0.2, 1.2),
+       st.one_of(st.floats(-1e-6, 1e-6), st.floats(-1e-12, 1e-12), st.just(0.0)))
+def test_may_reach_is_false_only_outside_the_support(axis, out, scale, offset, length, t0, t1, t, eps):
+    """Property: on random segments (any direction, tapered or not, 1e-3 to 1e3 mm
+    scales, 5,000 mm from the origin) and points at ``(1 + eps)`` times the
+    support's largest radius ``σ τ1`` from an axis point (t beyond the ends too),
+    within rounding of the support's boundary, may_reach is False only where the
+    support interval is empty and segment_eval gives exact zeros; and it is False
+    wherever the distance to the axis clears ``σ τ1`` by twice its margin."""
+    u = np.array(axis) / np.linalg.norm(axis)
+    d = np.array(out) / np.linalg.norm(out)
+    a = scale * (np.full(3, offset / scale) + 0.1 * np.array(out))
+    b = a + scale * length * u
+    ta, tb = scale * t0, scale * t1
+    q = a + t * (b - a)
+    p = q + (1.0 + eps) * SIG * max(ta, tb) * d
+    table = segment_table(_skeleton_of(a[None], b[None], np.array([ta]), np.array([tb])))
+    reach, empty, zero = _reach_and_support(table, p[None], 1.0 / SIG**2)
+    if not reach[0]:
+        assert empty[0] and zero[0], (p, a, b, ta, tb)
+    # the distance to the axis, in float64 on an exactly representable frame
+    ends = (a, b) if tb >= ta else (b, a)
+    w = p - ends[0]
+    e = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
+    s = min(max(float(w @ e), 0.0), float(np.linalg.norm(ends[1] - ends[0])))
+    d2 = float(np.sum((w - s * e) ** 2))
+    big2 = (SIG * max(ta, tb)) ** 2
+    if d2 - big2 > 4.0 * REACH_SLACK * (big2 + float(w @ w)) + 1e-12 * (big2 + float(w @ w)):
+        assert not reach[0], (d2, big2)
