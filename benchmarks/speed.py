@@ -302,6 +302,17 @@ def table(rows, labels) -> str:
     return "\n".join(lines)
 
 
+def trees_to_run(ap: argparse.ArgumentParser, baseline) -> dict:
+    """``{"current": this tree}``, plus ``"baseline"`` when ``--baseline`` names
+    another source tree (an argparse error if it holds no ``slicer`` package)."""
+    trees = {"current": ROOT}
+    if baseline is not None:
+        if not (baseline / "slicer" / "__init__.py").is_file():
+            ap.error(f"--baseline {baseline}: no slicer package there")
+        trees["baseline"] = baseline.resolve()
+    return trees
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--worker"]:
@@ -316,11 +327,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.repeat < 1 or args.threads < 1:
         ap.error("--repeat and --threads must be >= 1")
-    trees = {"current": ROOT}
-    if args.baseline is not None:
-        if not (args.baseline / "slicer" / "__init__.py").is_file():
-            ap.error(f"--baseline {args.baseline}: no slicer package there")
-        trees["baseline"] = args.baseline.resolve()
+    trees = trees_to_run(ap, args.baseline)
     sys.path.insert(0, str(ROOT))
     from validation import machine
 

@@ -68,7 +68,12 @@ def point_field(seg, offsets, ids, origin, cell, dims, m, inv_s2, norm, grad, sc
     segments binned in its grid cell (:func:`field_at_points`; zeros outside
     the grid). With the default kernel (``m = 3``) and ``POINT_LANES_FROM`` or
     more segments listed, they are evaluated in vector lanes
-    (:func:`_lanes_sum`): the same values to the bit."""
+    (:func:`_lanes_sum`): the same values to the bit.
+
+    ``grad`` reaches the compiled callees as a run-time flag (``bool(grad)``):
+    a constant ``True`` or ``False`` at a call site would make Numba compile
+    them once more for each constant (:data:`slicer._jit` keeps one copy)."""
+    flag = bool(grad)
     ix = int(math.floor((px - origin[0]) / cell[0]))
     iy = int(math.floor((py - origin[1]) / cell[1]))
     iz = int(math.floor((pz - origin[2]) / cell[2]))
@@ -78,13 +83,13 @@ def point_field(seg, offsets, ids, origin, cell, dims, m, inv_s2, norm, grad, sc
     a = offsets[cidx]
     b = offsets[cidx + 1]
     if m == 3 and b - a >= POINT_LANES_FROM:
-        return _lanes_sum(seg, ids, a, b, inv_s2, norm, grad, scratch, (px, py, pz))
+        return _lanes_sum(seg, ids, a, b, inv_s2, norm, flag, scratch, (px, py, pz))
     sf = 0.0
     sx = 0.0
     sy = 0.0
     sz = 0.0
     for r in range(a, b):
-        fi, gx, gy, gz = segment_eval(seg, ids[r], px, py, pz, m, inv_s2, norm, grad, scratch)
+        fi, gx, gy, gz = segment_eval(seg, ids[r], px, py, pz, m, inv_s2, norm, flag, scratch)
         sf += fi
         sx += gx
         sy += gy

@@ -163,25 +163,17 @@ def value_at(plane, x, y, scratch):
 
 
 @inline_kernel
-def judge_at(plane, cx, cy, r, G, H, U, known, f, gx, gy, tol, fslack, scratch):
+def judge_at(f, gx, gy, G, H, U, r, tol, fslack):
     """State, curvature and slope bounds of one cell from the disc bounds
-    ``G, H, U`` (:func:`slicer._kernels.cellstate.judge_cells`), with the
-    centre's field and gradient ``f, gx, gy`` when ``known``, else evaluated
-    unless ``U`` already puts the disc outside (then 0).
+    ``G, H, U`` (:func:`slicer._kernels.cellstate.judge_cells`) and the
+    centre's field and gradient ``f, gx, gy`` (0 where ``U`` already puts the
+    disc outside: not evaluated).
 
     Returns
     -------
-    state, kappa, sx, sy, f, gx, gy, evaluations
+    state, kappa, sx, sy
     """
-    far = U * (1.0 + fslack) < 1.0
-    ev = 0
-    if not known:
-        f = gx = gy = 0.0
-        if not far:
-            f, gx, gy = field_at(plane, cx, cy, scratch)
-            ev = 1
-    st, kp, sx, sy = _judge_one(f, gx, gy, G, H, r, far, tol, fslack)
-    return st, kp, sx, sy, f, gx, gy, ev
+    return _judge_one(f, gx, gy, G, H, r, U * (1.0 + fslack) < 1.0, tol, fslack)
 
 
 @inline_kernel
@@ -260,12 +252,18 @@ def classify_at(plane, cx, cy, r, kind, G, H, U, tol, pieces, coarse, fslack, sc
     """
     if kind == ROOT or kind == CHEAP:
         G, H, U = disc_at(plane, cx, cy, r, coarse, scratch)
-    st, kp, sx, sy, f, gx, gy, ev = judge_at(plane, cx, cy, r, G, H, U, False, 0.0, 0.0, 0.0, tol, fslack,
-                                             scratch)
+    # the centre's field, unless U already puts the disc outside; the full
+    # bounds below reuse it (one call site: one compiled copy of the evaluation)
+    f = gx = gy = 0.0
+    ev = 0
+    if not U * (1.0 + fslack) < 1.0:
+        f, gx, gy = field_at(plane, cx, cy, scratch)
+        ev = 1
+    st, kp, sx, sy = judge_at(f, gx, gy, G, H, U, r, tol, fslack)
     again = (st != IN and st != OUT) if kind == ROOT else (kind == OWN and st < 0)
     if again:
         G, H, U = disc_at(plane, cx, cy, r, pieces, scratch)
-        st, kp, sx, sy, f, gx, gy, _ = judge_at(plane, cx, cy, r, G, H, U, True, f, gx, gy, tol, fslack, scratch)
+        st, kp, sx, sy = judge_at(f, gx, gy, G, H, U, r, tol, fslack)
     return st, kp, sx, sy, f, gx, gy, G, H, U, ev
 
 
@@ -332,10 +330,17 @@ def corner_test(plane, box, gx, gy, G, H, rr, fslack, scratch):
     """
     xa, ya, xb, yb, s = box
     mx, my = monotone_axes(gx, gy, G, H, rr, fslack)
-    f00 = value_at(plane, xa, ya, scratch)
-    f10 = value_at(plane, xb, ya, scratch)
-    f11 = value_at(plane, xb, yb, scratch)
-    f01 = value_at(plane, xa, yb, scratch)
+    f00 = f10 = f11 = f01 = 0.0
+    for c in range(4):      # one call site: one compiled copy of the evaluation
+        v = value_at(plane, xb if c == 1 or c == 2 else xa, yb if c >= 2 else ya, scratch)
+        if c == 0:
+            f00 = v
+        elif c == 1:
+            f10 = v
+        elif c == 2:
+            f11 = v
+        else:
+            f01 = v
     st = ONEDIR if corners_clear(f00, f10, f11, f01, mx, my, H, s, fslack) else -1
     return st, (f00, f10, f11, f01)
 
