@@ -19,7 +19,7 @@ SLACK = 1e-9
 
 def judge_reference(f, g, G, H, far, r, tol, slack):
     gx, gy = g[:, 0], g[:, 1]
-    gn = np.hypot(gx, gy)
+    gn = np.sqrt(gx * gx + gy * gy)      # as grad_norm
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         spread = r * np.minimum(G, gn + 0.5 * r * H)
         spread = np.where(np.isnan(spread), np.inf, spread)
@@ -80,7 +80,7 @@ def test_settle_from_parent_matches_the_numpy_steps(seed):
     cy = np.repeat(pcy, 4) + np.tile([-0.5, -0.5, 0.5, 0.5], f.size) * r
     F, Gr, GG, HH = (np.repeat(a, 4, axis=0) for a in (f, g, G, H))
     offset = np.column_stack([cx - np.repeat(pcx, 4), cy - np.repeat(pcy, 4)])
-    gn = np.hypot(Gr[:, 0], Gr[:, 1])
+    gn = np.sqrt(Gr[:, 0] * Gr[:, 0] + Gr[:, 1] * Gr[:, 1])
     with np.errstate(invalid="ignore", over="ignore"):
         lin = F + Gr[:, 0] * offset[:, 0] + Gr[:, 1] * offset[:, 1]
         spread = r * gn + 2.0 * HH * r * r
@@ -98,7 +98,7 @@ def test_crest_candidates_match_the_numpy_steps(seed):
     f, g, G, H, far, r = random_cells(seed)
     state = judge_cells(f, g, G, H, far, r, 1e-3, SLACK)[0]
     rr, thin = 0.01, 2.5e-4
-    gn = np.hypot(g[:, 0], g[:, 1])
+    gn = np.sqrt(g[:, 0] * g[:, 0] + g[:, 1] * g[:, 1])
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         t = np.minimum(gn / H, rr)
         low = f + gn * t - 0.5 * H * t * t - SLACK * (1.0 + np.abs(f) + rr * (gn + G))
@@ -190,7 +190,7 @@ def test_corner_candidates_and_clear_cells_are_the_per_cell_tests(seed):
     cand = corner_candidates(f, g, G, H, rr, s, SLACK)
     corners = np.ascontiguousarray(1.0 + rng.normal(0.0, 0.02, (4, f.size)))
     clear = clear_cells(corners, g, G, H, rr, s, SLACK)
-    gn = np.hypot(g[:, 0], g[:, 1])
+    gn = np.sqrt(g[:, 0] * g[:, 0] + g[:, 1] * g[:, 1])
     with np.errstate(invalid="ignore", over="ignore"):
         gs = SLACK * (gn + G) + rr * H
     gs = np.where(np.isnan(gs), np.inf, gs)
