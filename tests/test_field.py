@@ -965,10 +965,11 @@ _unit3 = st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-1.0, 1
 def test_may_reach_is_false_only_outside_the_support(axis, out, scale, offset, length, t0, t1, t, eps):
     """Property: on random segments (any direction, tapered or not, 1e-3 to 1e3 mm
     scales, 5,000 mm from the origin) and points at ``(1 + eps)`` times the
-    support's largest radius ``σ τ1`` from an axis point (t beyond the ends too),
-    within rounding of the support's boundary, may_reach is False only where the
-    support interval is empty and segment_eval gives exact zeros; and it is False
-    wherever the distance to the axis clears ``σ τ1`` by twice its margin."""
+    support's largest radius ``σ τ1`` from an axis point (t beyond the ends too,
+    ``|eps|`` down to rounding), may_reach is False only where the support
+    interval is empty and segment_eval gives exact zeros; and it is False
+    wherever the squared distance to the axis exceeds ``(σ τ1)²`` by a few
+    times its margin (a filter that keeps everything fails)."""
     u = np.array(axis) / np.linalg.norm(axis)
     d = np.array(out) / np.linalg.norm(out)
     a = scale * (np.full(3, offset / scale) + 0.1 * np.array(out))
@@ -980,7 +981,7 @@ def test_may_reach_is_false_only_outside_the_support(axis, out, scale, offset, l
     reach, empty, zero = _reach_and_support(table, p[None], 1.0 / SIG**2)
     if not reach[0]:
         assert empty[0] and zero[0], (p, a, b, ta, tb)
-    # the distance to the axis, in float64 on an exactly representable frame
+    # the squared distance from p to the axis (the radius grows towards ends[1]), recomputed in numpy
     ends = (a, b) if tb >= ta else (b, a)
     w = p - ends[0]
     e = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])

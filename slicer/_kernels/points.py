@@ -72,7 +72,7 @@ def point_field(seg, offsets, ids, origin, cell, dims, m, inv_s2, norm, grad, sc
 
     ``grad`` reaches the compiled callees as a run-time flag (``bool(grad)``):
     a constant ``True`` or ``False`` at a call site would make Numba compile
-    them once more for each constant (:data:`slicer._jit` keeps one copy)."""
+    them once more for each constant (docs/development.md, "Cache")."""
     flag = bool(grad)
     ix = int(math.floor((px - origin[0]) / cell[0]))
     iy = int(math.floor((py - origin[1]) / cell[1]))
