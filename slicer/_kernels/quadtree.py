@@ -280,7 +280,8 @@ def _cell(plane, cx, cy, rr, box, k, kind, parents, crests, settings, scratch):
     """
     pcx, pcy, pf, pgx, pgy, pG, pH, pU = parents
     if pcx.shape[0] == 0:
-        return _classified(plane, cx, cy, rr, box, CHEAP, 0.0, 0.0, 0.0, crests, settings, scratch)
+        # int(): a constant argument is a type of its own to Numba (one more compiled copy)
+        return _classified(plane, cx, cy, rr, box, int(CHEAP), 0.0, 0.0, 0.0, crests, settings, scratch)
     st = settle_one(pf[k], pgx[k], pgy[k], pG[k], pH[k], rr, cx - pcx[k], cy - pcy[k], settings[4])
     if st >= 0:
         return st, np.inf, 0.0, 0.0, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0, (np.nan, np.nan, np.nan, np.nan)
@@ -529,8 +530,9 @@ def quadtree(plane, root, levels, inherit_side, settings):
                                                        settings)
         cells += ix.shape[0]
         evaluations += ev
-        ix, iy, parents, leaves, nl, known, nk = _gather(ix, iy, lev, levels, (state, kappa, sx, sy, tay), leaves, nl,
-                                                         known, nk)
+        # int(): while typing the loop, the counters' first type is the constant 0
+        ix, iy, parents, leaves, nl, known, nk = _gather(ix, iy, lev, levels, (state, kappa, sx, sy, tay), leaves,
+                                                         int(nl), known, int(nk))
     LX, LY, LS, LST, LK, LSX, LSY = leaves
     slope = np.empty((nl, 2))
     slope[:, 0] = LSX[:nl]

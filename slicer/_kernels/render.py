@@ -523,7 +523,8 @@ def render_buckets(buckets, bk, screen, prim, opt, shade, out):
     bk = (nbx, B, offsets, borrow(ids), borrow(seg), borrow(boxes2d))
     screen = (W, H, borrow(cam))
     for q in prange(buckets.shape[0]):
-        _render_bucket(q, buckets[q], bk, screen, prim, opt, shade, out)
+        # np.int64: one index type, one compiled copy (see trace_buckets)
+        _render_bucket(np.int64(q), buckets[q], bk, screen, prim, opt, shade, out)
 
 
 @kernel

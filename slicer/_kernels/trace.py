@@ -592,7 +592,9 @@ def trace_buckets(method, buckets, first, bk, grid, prim, opt, out):
     # borrowed views (slicer._kernels.borrow): the arguments outlive the launch
     bk = (nbx, B, bucket_off, borrow(ids), borrow(seg), borrow(boxes))
     for q in prange(buckets.shape[0]):
-        _trace_bucket(method, q, buckets[q], first[q], bk, grid, prim, opt, out)
+        # np.int64: a prange index is uint64 inside the parallel body, int64 when typed
+        # outside it; one type, one compiled copy of the bucket (docs/development.md)
+        _trace_bucket(method, np.int64(q), buckets[q], first[q], bk, grid, prim, opt, out)
 
 
 @kernel
