@@ -21,7 +21,8 @@ def judge_reference(f, g, G, H, far, r, tol, slack):
     gx, gy = g[:, 0], g[:, 1]
     gn = np.sqrt(gx * gx + gy * gy)      # as grad_norm
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        spread = r * np.minimum(G, gn + 0.5 * r * H)
+        h = r / np.sqrt(2.0) * (1.0 + 1e-15)          # half the side of the square in the disc
+        spread = np.minimum(r * G, h * (np.abs(gx) + np.abs(gy)) + 0.5 * r * r * H)
         spread = np.where(np.isnan(spread), np.inf, spread)
         fs = slack * (1.0 + np.abs(f))
         gs = slack * (gn + G) + r * H
@@ -81,13 +82,22 @@ def test_settle_from_parent_matches_the_numpy_steps(seed):
     F, Gr, GG, HH = (np.repeat(a, 4, axis=0) for a in (f, g, G, H))
     offset = np.column_stack([cx - np.repeat(pcx, 4), cy - np.repeat(pcy, 4)])
     gn = np.sqrt(Gr[:, 0] * Gr[:, 0] + Gr[:, 1] * Gr[:, 1])
+    h = r / np.sqrt(2.0) * (1.0 + 1e-15)
     with np.errstate(invalid="ignore", over="ignore"):
-        lin = F + Gr[:, 0] * offset[:, 0] + Gr[:, 1] * offset[:, 1]
-        spread = r * gn + 2.0 * HH * r * r
+        # the parent's quadratic bounds at the child's four corners
+        hi = np.full(F.size, -np.inf)
+        lo = np.full(F.size, np.inf)
+        for sx, sy in ((-1, -1), (1, -1), (-1, 1), (1, 1)):
+            ex, ey = offset[:, 0] + sx * h, offset[:, 1] + sy * h
+            lin = Gr[:, 0] * ex + Gr[:, 1] * ey
+            q = 0.5 * HH * (ex * ex + ey * ey)
+            hi = np.maximum(hi, lin + q)
+            lo = np.minimum(lo, lin - q)
         slack = SLACK * (1.0 + np.abs(F) + 2.0 * r * (gn + GG))
     want = np.full(F.size, -1, np.int8)
-    want[lin + spread + slack < 1.0] = OUT
-    want[lin - spread - slack > 1.0] = IN
+    finite = HH < np.inf
+    want[finite & (F + hi + slack < 1.0)] = OUT
+    want[finite & (F + lo - slack > 1.0)] = IN
     got = settle_from_parent(f, g, G, H, r, cx, cy, (pcx, pcy), SLACK)
     assert np.array_equal(got, want)
     assert set(np.unique(got).tolist()) == {-1, OUT, IN}
@@ -106,6 +116,89 @@ def test_crest_candidates_match_the_numpy_steps(seed):
     got = crest_candidates(state, f, g, G, H, rr, thin, SLACK, 1e-9)
     assert np.array_equal(got, want)
     assert got.any() and not got.all()
+
+
+# --------------------------------------------------------------------------- IN and OUT over the square
+# F(c + d) = f + g.d + d.A.d / 2 with A of norm H: its extremes over a square
+# cell are the bounds the cell tests use, so these fields are the hardest ones.
+def _square_samples(cx, cy, h, k=41):
+    t = np.linspace(-h, h, k)
+    return (cx + t[:, None] + 0.0 * t[None, :]).ravel(), (cy + 0.0 * t[:, None] + t[None, :]).ravel()
+
+
+def _quadratic(f, g, theta, lam, H):
+    """``F(d) = f + g.d + d.A.d/2``, A's eigenvalues ``lam H`` (lam in [-1, 1]
+    each) along the directions ``theta`` and ``theta + 90°``."""
+    c, s = np.cos(theta), np.sin(theta)
+    R = np.array([[c, -s], [s, c]])
+    A = R @ np.diag(np.asarray(lam) * H) @ R.T
+
+    def F(dx, dy):
+        return f + g[0] * dx + g[1] * dy + 0.5 * (A[0, 0] * dx * dx + 2 * A[0, 1] * dx * dy + A[1, 1] * dy * dy)
+    return F
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0), st.floats(0.0, 3.2), st.sampled_from([-1.0, -0.3, 0.5, 1.0]),
+       st.sampled_from([-1.0, 0.0, 1.0]), st.floats(0.1, 40.0), st.sampled_from([1e-3, 0.05]),
+       st.floats(-0.02, 0.02))
+def test_in_and_out_hold_over_the_whole_square_cell(gx, gy, theta, l1, l2, H, side, eps):
+    """A cell judged OUT (IN) from its centre's Taylor data has F < 1 (> 1) at
+    every point of its square, corners included, for every field within the
+    curvature bound; and where the field is the bound itself (A = ±H I) and
+    clears 1 by more than the evaluation slack, the cell is settled: the
+    test is tight at the square's corners, not only sound."""
+    h = 0.5 * side
+    r = h * np.sqrt(2.0) * (1.0 + 1e-9)
+    dx, dy = _square_samples(0.0, 0.0, h)
+    for sign in (1.0, -1.0):                 # OUT near the top of F, IN near its bottom
+        shape = _quadratic(0.0, (gx, gy), theta, (l1, l2), H)(dx, dy)
+        extreme = shape.max() if sign > 0 else shape.min()
+        scale = np.abs(shape).max() + 1e-12
+        f = 1.0 - extreme + eps * scale
+        vals = f + shape
+        st_, _, _ = judge_cells(np.array([f]), np.array([[gx, gy]]), np.array([np.inf]), np.array([H]),
+                                np.zeros(1, np.bool_), np.array([r]), 1e-3, SLACK)
+        if st_[0] == OUT:
+            assert vals.max() < 1.0
+        if st_[0] == IN:
+            assert vals.min() > 1.0
+        tight = l1 == l2 == sign and abs(eps) * scale > 1e-6 * (1.0 + abs(f))
+        if tight and (vals.max() < 1.0 if sign > 0 else vals.min() > 1.0):
+            assert st_[0] == (OUT if sign > 0 else IN)
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0), st.floats(0.0, 3.2), st.sampled_from([-1.0, -0.3, 0.5, 1.0]),
+       st.sampled_from([-1.0, 0.0, 1.0]), st.floats(0.1, 40.0), st.sampled_from([1e-3, 0.05]),
+       st.floats(-0.02, 0.02), st.integers(0, 3))
+def test_children_settled_by_their_parent_hold_over_their_squares(gx, gy, theta, l1, l2, H, side, eps, child):
+    """:func:`settle_from_parent`: a child (side ``side``, one quarter of its
+    parent) settled OUT or IN from the parent's centre data is so at every
+    point of its square, for every field within the parent's curvature bound;
+    and it is settled where the field is the bound itself and clears 1."""
+    h = 0.5 * side
+    r = h * np.sqrt(2.0) * (1.0 + 1e-9)
+    ox, oy = (h if child & 1 else -h), (h if child & 2 else -h)
+    dx, dy = _square_samples(ox, oy, h)
+    cx = np.array([-h, h, -h, h])
+    cy = np.array([-h, -h, h, h])
+    for sign in (1.0, -1.0):
+        shape = _quadratic(0.0, (gx, gy), theta, (l1, l2), H)(dx, dy)
+        extreme = shape.max() if sign > 0 else shape.min()
+        scale = np.abs(shape).max() + 1e-12
+        f = 1.0 - extreme + eps * scale
+        vals = f + shape
+        G = np.hypot(gx, gy) + 2.0 * r * H          # the slope's bound over the parent's disc
+        got = settle_from_parent(np.array([f]), np.array([[gx, gy]]), np.array([G]), np.array([H]), r, cx, cy,
+                                 (np.zeros(1), np.zeros(1)), SLACK)[child]
+        if got == OUT:
+            assert vals.max() < 1.0
+        if got == IN:
+            assert vals.min() > 1.0
+        tight = l1 == l2 == sign and abs(eps) * scale > 1e3 * SLACK * (1.0 + abs(f) + 2.0 * r * (np.hypot(gx, gy) + G))
+        if tight and (vals.max() < 1.0 if sign > 0 else vals.min() > 1.0):
+            assert got == (OUT if sign > 0 else IN)
 
 
 # --------------------------------------------------------------------------- the corner test

@@ -19,6 +19,9 @@ from .brackets import np_minimum
 #: monotone in x and y, monotone in one of them with no cap deeper than the
 #: tolerance, finest level, on a crest narrower than the finest leaves
 OUT, IN, SIMPLE, ONEDIR, SMALL, THIN = 0, 1, 2, 3, 4, 5
+#: half side of a square cell per unit of the radius of the disc around it
+#: (1/sqrt(2), rounded up: a bound on the square may only grow)
+HALF_SIDE = 0.7071067811865476 * (1.0 + 1e-15)
 
 
 @inline_kernel
@@ -37,7 +40,9 @@ def _judge_one(f, gx, gy, G, H, r, far, tol, slack):
     """State, curvature bound and the two slope bounds of one cell (see
     :func:`judge_cells`)."""
     gn = grad_norm(gx, gy)
-    spread = r * np_minimum(G, gn + 0.5 * r * H)      # NaN compares false, as inf would
+    # over the square: |F - f| <= r G, and F - f lies within g.d +- H |d|^2 / 2,
+    # at most h (|gx| + |gy|) + H r^2 / 2 (h the half side, |d| <= r)
+    spread = np_minimum(r * G, HALF_SIDE * r * (abs(gx) + abs(gy)) + 0.5 * r * r * H)    # NaN compares false
     fs = slack * (1.0 + abs(f))
     gs = _slope_margin(gn, G, H, r, slack)
     state = -1
@@ -123,7 +128,9 @@ def judge_cells(f, g, G, H, far, r, tol, slack):
     """States of cells from the field and in-plane gradient at their centres
     and bounds over their discs.
 
-    With ``gn = ‖g‖``, ``spread = r min(G, gn + r H / 2)`` and
+    With ``gn = ‖g‖``, ``spread = min(r G, h (|gx| + |gy|) + r² H / 2)``
+    (``h = r/√2`` the half side of the square cell: over the square, F lies
+    within ``g·d ± H |d|²/2`` of ``f``) and
     ``gs = slack (gn + G) + r H`` (NaN: inf; a NaN spread settles nothing), a cell is OUT where
     ``f + spread + slack (1 + |f|) < 1`` or ``far``, IN where
     ``f − spread − slack (1 + |f|) > 1``, else SIMPLE where both partials
@@ -211,9 +218,12 @@ def clear_cells(corners, g, G, H, r, s, slack):
 @kernel
 def settle_from_parent(f, g, G, H, r, cx, cy, parent, slack):
     """IN, OUT or -1 of child cells from their parent's Taylor data: over the
-    child's disc (radius ``r``, inside the parent's of radius ``2 r``), ``F``
-    lies within ``r ‖g‖ + 2 H r²`` of the parent's linear model at the child's
-    centre, up to ``slack (1 + |f| + 2 r (‖g‖ + G))``.
+    child's square (half side ``h = r/√2``, ``r`` the radius of its disc,
+    inside the parent's of radius ``2 r``), ``F`` lies within
+    ``g·d ± H |d|²/2`` of the parent's ``f`` (``d`` from the parent's
+    centre); the bound's largest and least values are at the child's
+    corners. Up to ``slack (1 + |f| + 2 r (‖g‖ + G))``; an infinite or NaN
+    ``H`` settles nothing.
 
     Parameters
     ----------
@@ -242,15 +252,28 @@ def settle_from_parent(f, g, G, H, r, cx, cy, parent, slack):
 @inline_kernel
 def settle_one(f, gx, gy, G, H, r, dx, dy, slack):
     """IN, OUT or -1 of one child cell, offset ``(dx, dy)`` from its parent's
-    centre, from the parent's Taylor data (:func:`settle_from_parent`)."""
+    centre, from the parent's Taylor data (:func:`settle_from_parent`): the
+    parent's model ``f + g·d ± H |d|²/2`` (d from the parent's centre) is
+    convex (concave) in d, so its largest (least) value over the child's
+    square is at one of its four corners."""
+    if not H < math.inf:        # inf or NaN: nothing settles, as before
+        return -1
     gn = grad_norm(gx, gy)
-    lin = f + gx * dx + gy * dy
-    spread = r * gn + 2.0 * H * r * r
+    h = HALF_SIDE * r
+    hi = -math.inf
+    lo = math.inf
+    for c in range(4):
+        ex = dx + (h if c & 1 else -h)
+        ey = dy + (h if c & 2 else -h)
+        lin = gx * ex + gy * ey
+        q = 0.5 * H * (ex * ex + ey * ey)
+        hi = max(hi, lin + q)
+        lo = min(lo, lin - q)
     sl = slack * (1.0 + abs(f) + 2.0 * r * (gn + G))
     st = -1
-    if lin + spread + sl < 1.0:
+    if f + hi + sl < 1.0:
         st = OUT
-    if lin - spread - sl > 1.0:
+    if f + lo - sl > 1.0:
         st = IN
     return st
 

@@ -13,8 +13,10 @@ the disc of radius ``r`` (half the diagonal) around it
 the in-plane slope ``‖∇_xy F‖`` and ``H`` of the in-plane Hessian's norm over
 the disc,
 
-* ``|F(p) − F(c)| <= r min(G, ‖∇_xy F(c)‖ + r H / 2)`` (settled when this keeps
-  ``F`` on one side of 1);
+* ``|F(p) − F(c)| <= min(r G, h (|∂F/∂x(c)| + |∂F/∂y(c)|) + r² H / 2)`` over the
+  cell's square (half side ``h = r/√2``; settled when this keeps ``F`` on one side
+  of 1; a child is first tried with its parent's ``F(c) + ∇F(c)·d ± H |d|²/2`` at
+  its four corners);
 * ``|∂F/∂x(p) − ∂F/∂x(c)| <= r H`` (simple when neither partial can vanish).
 
 Every leaf boundary is walked counter-clockwise through all leaf corners on
