@@ -543,8 +543,11 @@ def quadtree(plane, root, levels, inherit_side, settings):
 
 @parallel_kernel
 def classify_cells(plane, cx, cy, r, settings):
-    """:func:`classify_at` of root-kind discs (cheap bounds first, then full
-    ones): the quadtree's classification of arbitrary discs.
+    """:func:`classify_at` of root-kind cells (cheap bounds first, then full
+    ones): the quadtree's classification of arbitrary square cells, given by
+    their centre and the radius ``r`` of the disc around them (IN and OUT
+    hold over the square of half side ``r/√2``; the bounds, SIMPLE and
+    ONEDIR over the disc).
 
     Parameters
     ----------

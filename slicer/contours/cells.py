@@ -146,7 +146,9 @@ class _Bounds:
         self.settings = (self.tol, self.thin, PIECES, COARSE_PIECES, FIELD_SLACK, SLACK)
 
     def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
-        """State of each disc (OUT, IN, SIMPLE, ONEDIR or -1: unresolved), (c,) int8,
+        """State of each square cell, given by its centre and the radius ``r`` of
+        the disc around it (OUT, IN, SIMPLE, ONEDIR or -1: unresolved; IN and
+        OUT hold over the square of half side ``r/√2``), (c,) int8,
         a bound of the contour's curvature in it, (c,) float64, 1/mm (inf: none),
         lower bounds of ``|∂F/∂x|`` and ``|∂F/∂y|`` over it, (c, 2) float64,
         1/mm (0: none), and the Taylor data of its centre: the field, (c,)
