@@ -11,8 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from slicer._kernels.cellstate import (IN, ONEDIR, OUT, SIMPLE, clear_cells, corner_candidates, corners_clear,
-                                       crest_candidates, edge_clear, judge_cells, settle_from_parent)
+from slicer._kernels.cellstate import (HALF_SIDE, IN, ONEDIR, OUT, SIMPLE, clear_cells, corner_candidates,
+                                       corners_clear, crest_candidates, edge_clear, judge_cells, settle_from_parent)
 
 SLACK = 1e-9
 
@@ -21,7 +21,7 @@ def judge_reference(f, g, G, H, far, r, tol, slack):
     gx, gy = g[:, 0], g[:, 1]
     gn = np.sqrt(gx * gx + gy * gy)      # as grad_norm
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        h = r / np.sqrt(2.0) * (1.0 + 1e-15)          # half the side of the square in the disc
+        h = HALF_SIDE * r                               # half the side of the square in the disc
         spread = np.minimum(r * G, h * (np.abs(gx) + np.abs(gy)) + 0.5 * r * r * H)
         spread = np.where(np.isnan(spread), np.inf, spread)
         fs = slack * (1.0 + np.abs(f))
@@ -82,7 +82,7 @@ def test_settle_from_parent_matches_the_numpy_steps(seed):
     F, Gr, GG, HH = (np.repeat(a, 4, axis=0) for a in (f, g, G, H))
     offset = np.column_stack([cx - np.repeat(pcx, 4), cy - np.repeat(pcy, 4)])
     gn = np.sqrt(Gr[:, 0] * Gr[:, 0] + Gr[:, 1] * Gr[:, 1])
-    h = r / np.sqrt(2.0) * (1.0 + 1e-15)
+    h = HALF_SIDE * r
     with np.errstate(invalid="ignore", over="ignore"):
         # the parent's quadratic bounds at the child's four corners
         hi = np.full(F.size, -np.inf)
