@@ -118,3 +118,65 @@ def test_speed_benchmark_byte_compiles_each_tree(tmp_path):
     assert not (tree / "other" / "__pycache__").exists()     # not one of the packages the jobs import
     (tree / "formats" / "bad.py").write_text("def (:\n")
     assert not sb.byte_compile(tree)
+
+
+# --------------------------------------------------------------------------- benchmarks/compile_time.py
+def _compile_time_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("compile_time", ROOT / "benchmarks" / "compile_time.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--repeat", "0"], "--repeat must be >= 1"),
+    (["--baseline", "."], "no slicer package there"),
+    (["--jobs", "render"], "invalid choice"),
+])
+def test_compile_time_refuses_bad_arguments_before_compiling_anything(tmp_path, args, needle):
+    """Through the real entry point: a usage error (exit 2) naming the problem,
+    and no run started (a run would take a minute of compiling)."""
+    p = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "compile_time.py"), *args], capture_output=True,
+                       text=True, cwd=tmp_path, timeout=60)
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert needle in p.stderr and "Traceback" not in p.stderr
+    assert "run 1" not in p.stderr
+
+
+def test_compile_time_alternates_trees_with_a_fresh_cache_each_and_reports_medians(tmp_path, monkeypatch):
+    """The driver's bookkeeping with the subprocess replaced: every (job, tree)
+    runs ``repeat`` times, trees alternating within a round; each cold run gets
+    an empty cache folder of its own and the warm run reuses it; compile is
+    first minus steady; the medians and the table follow."""
+    ct = _compile_time_module()
+    monkeypatch.setattr(ct, "byte_compile", lambda tree: True)
+    calls = []
+    fake = {("contours", "a"): [(10.0, 1.0), (14.0, 2.0), (12.0, 1.0)], ("contours", "b"): [(20.0, 1.0),
+                                                                                           (30.0, 1.0), (25.0, 3.0)]}
+    seen_caches = []
+
+    def run(job, tree, cache):
+        calls.append((job, tree.name))
+        k = sum(1 for c in calls if c == (job, tree.name)) - 1
+        if k % 2 == 0:                      # the cold run: its cache folder is new and empty
+            assert cache not in seen_caches and not any(cache.iterdir())
+            seen_caches.append(cache)
+            first, steady = fake[(job, tree.name)][k // 2]
+        else:                               # the warm run: the same folder as the cold one
+            assert cache == seen_caches[-1]
+            first, steady = 0.25 + k, 0.0
+        return {"first_seconds": first, "steady_seconds": steady}
+
+    monkeypatch.setattr(ct, "_run", run)
+    trees = {"a": tmp_path / "a", "b": tmp_path / "b"}
+    rows = ct.measure(trees, ["contours"], 3, log=lambda s: None)
+    assert [c[1] for c in calls] == ["a", "a", "b", "b"] * 3
+    by = {r["tree"]: r for r in rows}
+    assert [r["compile_seconds"] for r in by["a"]["runs"]] == [9.0, 12.0, 11.0]
+    assert by["a"]["median_compile_seconds"] == 11.0 and by["b"]["median_compile_seconds"] == 22.0
+    assert by["a"]["median_first_seconds"] == 12.0 and by["b"]["median_first_seconds"] == 25.0
+    assert by["a"]["median_cached_seconds"] == 3.25
+    text = ct.table(rows, ["a", "b"])
+    assert "| contours | 11.0 s | 22.0 s | 3.25 s | 3.25 s |" in text
