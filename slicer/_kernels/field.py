@@ -614,7 +614,9 @@ def segment_eval(seg, i, px, py, pz, m, inv_s2, norm, grad, scratch):
     norm : float
         Kernel normalisation N.
     grad : bool
-        Also compute the gradient.
+        Also compute the gradient. Callers pass a run-time bool
+        (``bool(True)``, not ``True``): a literal is a type of its own to
+        Numba and would compile this function once more (docs/development.md).
     scratch : (>= SCRATCH,) float64
         Work array.
 

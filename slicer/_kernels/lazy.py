@@ -44,7 +44,7 @@ def eval_dir(seg, hprim, hrec, r, ray, t, kp, scratch, cache):
         return cf[r], cfp[r], 0
     ox, oy, oz, dx, dy, dz = ray
     m, inv_s2, norm = kp
-    f, gx, gy, gz = segment_eval(seg, hprim[r], ox + t * dx, oy + t * dy, oz + t * dz, m, inv_s2, norm, True,
+    f, gx, gy, gz = segment_eval(seg, hprim[r], ox + t * dx, oy + t * dy, oz + t * dz, m, inv_s2, norm, bool(True),
                                  scratch)
     fp = gx * dx + gy * dy + gz * dz
     ct[r] = t

@@ -243,7 +243,7 @@ def eval_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, cach
             f = cf[r]
             fp = cfp[r]
         else:
-            f, gx, gy, gz = segment_eval(seg, hprim[r], px, py, pz, m, inv_s2, norm, True, scratch)
+            f, gx, gy, gz = segment_eval(seg, hprim[r], px, py, pz, m, inv_s2, norm, bool(True), scratch)
             fp = gx * dx + gy * dy + gz * dz
             ct[r] = t
             cf[r] = f
@@ -305,7 +305,7 @@ def _lane_alone(seg, hprim, sarr, ray, t, kp, scratch, F, FP, row, ct, cf, cfp):
     m, inv_s2, norm = kp
     s = int(scratch[LANE_TAG])
     r = sarr[s]
-    f, gx, gy, gz = segment_eval(seg, hprim[r], ox + t * dx, oy + t * dy, oz + t * dz, m, inv_s2, norm, True,
+    f, gx, gy, gz = segment_eval(seg, hprim[r], ox + t * dx, oy + t * dy, oz + t * dz, m, inv_s2, norm, bool(True),
                                  scratch)
     _store(F, FP, row, s, r, t, f, gx * dx + gy * dy + gz * dz, ct, cf, cfp)
 
@@ -337,7 +337,7 @@ def _lanes_done(seg, hprim, sarr, k, ray, t, kp, scratch, F, FP, row, ct, cf, cf
         r = sarr[s]
         f, gx, gy, gz, redo = lane_result(scratch, j)
         if redo:
-            f, gx, gy, gz = segment_eval(seg, hprim[r], px, py, pz, m, inv_s2, norm, True, scratch)
+            f, gx, gy, gz = segment_eval(seg, hprim[r], px, py, pz, m, inv_s2, norm, bool(True), scratch)
         _store(F, FP, row, s, r, t, f, gx * dx + gy * dy + gz * dz, ct, cf, cfp)
 
 
@@ -398,7 +398,7 @@ def inside_leap(seg, hprim, hrec, sarr, ns, F, FP, cur, ray, tb, goal, kp, scrat
             f = cf[r]
         else:
             f, gx, gy, gz = segment_eval(seg, hprim[r], ox + tb * dx, oy + tb * dy, oz + tb * dz, m, inv_s2, norm,
-                                         True, scratch)
+                                         bool(True), scratch)
             ct[r] = tb
             cf[r] = f
             cfp[r] = gx * dx + gy * dy + gz * dz

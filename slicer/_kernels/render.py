@@ -119,7 +119,7 @@ def field_grad_along(seg, hprim, sarr, ns, ray, t, kp, scratch):
     Gy = 0.0
     Gz = 0.0
     for s in range(ns):
-        f, gx, gy, gz = segment_eval(seg, hprim[sarr[s]], px, py, pz, m, inv_s2, norm, True, scratch)
+        f, gx, gy, gz = segment_eval(seg, hprim[sarr[s]], px, py, pz, m, inv_s2, norm, bool(True), scratch)
         F += f
         Gx += gx
         Gy += gy

@@ -102,7 +102,7 @@ def _cluster_field(seg, hprim, hrec, order, a, b, px, py, z, m, inv_s2, norm, sc
     for c in range(a, b):
         r = order[c]
         if hrec[r, H_TIN] < z and hrec[r, H_TOUT] > z:
-            fi, gx, gy, gz = segment_eval(seg, hprim[r], px, py, z, m, inv_s2, norm, False, scratch)
+            fi, gx, gy, gz = segment_eval(seg, hprim[r], px, py, z, m, inv_s2, norm, bool(False), scratch)
             f += fi
             nev += 1
     return f, nev
@@ -475,7 +475,7 @@ def trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, col, kp, scratch, active
             continue
         f = 0.0
         for q in range(na):
-            fi, gx, gy, gz = segment_eval(seg, active[q], px, py, z, m, inv_s2, norm, False, scratch)
+            fi, gx, gy, gz = segment_eval(seg, active[q], px, py, z, m, inv_s2, norm, bool(False), scratch)
             f += fi
         nev += na
         nrun = _emit(k, k, f >= 1.0, rk0, rk1, nrun, cap)

@@ -62,7 +62,7 @@ def strut_value(seg, g, hrec, r, px, py, t, m, inv_s2, norm, scratch):
     support interval of hit record ``r``."""
     if not (t > hrec[r, H_TIN] and t < hrec[r, H_TOUT]):
         return 0.0, 0.0
-    f, gx, gy, gz = segment_eval(seg, g, px, py, t, m, inv_s2, norm, True, scratch)
+    f, gx, gy, gz = segment_eval(seg, g, px, py, t, m, inv_s2, norm, bool(True), scratch)
     return f, gz
 
 
@@ -490,7 +490,7 @@ def sampling_ray(seg, boxes, ids, i0, i1, fp, ip, kp, bufs, runs, cnt):
             break
         best = 0.0
         for a in range(na):
-            f, gx, gy, gz = segment_eval(seg, active[a], px, py, z, m, inv_s2, norm, False, scratch)
+            f, gx, gy, gz = segment_eval(seg, active[a], px, py, z, m, inv_s2, norm, bool(False), scratch)
             best = max(best, f)
         cnt[C_EV] += na
         if best >= 1.0 and not emit(runs, cnt, k, k):
