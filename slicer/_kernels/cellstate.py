@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from .._jit import inline_kernel, kernel
-from .brackets import np_minimum
+from .brackets import np_maximum, np_minimum
 
 #: leaf states (:mod:`slicer.contours.cells`): proven outside, proven inside,
 #: monotone in x and y, monotone in one of them with no cap deeper than the
@@ -267,8 +267,8 @@ def settle_one(f, gx, gy, G, H, r, dx, dy, slack):
         ey = dy + (h if c & 2 else -h)
         lin = gx * ex + gy * ey
         q = 0.5 * H * (ex * ex + ey * ey)
-        hi = max(hi, lin + q)
-        lo = min(lo, lin - q)
+        hi = np_maximum(hi, lin + q)        # NaN stays NaN: a NaN gradient settles nothing
+        lo = np_minimum(lo, lin - q)
     sl = slack * (1.0 + abs(f) + 2.0 * r * (gn + G))
     st = -1
     if f + hi + sl < 1.0:
