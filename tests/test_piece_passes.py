@@ -25,6 +25,7 @@ _ipow = cb._ipow.py_func
 _slope_sup = cb._slope_sup.py_func
 _curvature_sup = cb._curvature_sup.py_func
 _second_sup = cb._second_sup.py_func
+_radial = cb._radial.py_func
 
 
 def _dist2(w, u, t):
@@ -43,8 +44,16 @@ def one_loop_piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2,
     inv_s2 = 1.0 / (sigma * sigma)
     cn = norm * n * inv_s2
     step = (tb - ta) / pieces
-    g = h = f = bh = bl = a = ap = 0.0
-    rho = math.sqrt(max(w[0] * w[0] + w[1] * w[1] + w[2] * w[2] - wu * wu, 0.0)) * (1.0 + SLACK) + r
+    g = h = f = bh = bl = a = ru = rl = 0.0
+    rho_c = math.sqrt(max(w[0] * w[0] + w[1] * w[1] + w[2] * w[2] - wu * wu, 0.0))
+    rho = rho_c * (1.0 + SLACK) + r
+    # the radial terms of an untapered segment: kappa = 2(m - 1) rho_p^2 / (sigma tau)^2 - 1 over the disc
+    S2 = (sigma * tau0) * (sigma * tau0)
+    S2 = S2 if S2 > 0.0 else 1.0
+    rho_lo = max(rho_c * (1.0 - SLACK) - r, 0.0)
+    kap_lo = 2.0 * (m - 1.0) * rho_lo * rho_lo / S2 * (1.0 - SLACK) - 1.0
+    kap_hi = 2.0 * (m - 1.0) * rho * rho / S2 * (1.0 + SLACK) - 1.0
+    ustar = (1.0 - (m - 2.0) * kap_hi) / (m - 1.0) if m >= 2 else 1.0
     q0, Q0 = _dist2(w, u, ta + 0 * step)
     D0 = math.sqrt(Q0)
     ita = 1.0 / (tau0 + d * (ta + 0 * step))
@@ -52,7 +61,7 @@ def one_loop_piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2,
         t0 = ta + j * step
         t1 = tb if j == pieces - 1 else ta + (j + 1) * step
         if not tau0 + d * t0 > 0.0:
-            return math.inf, math.inf, math.inf, math.inf, 0.0, math.inf, math.inf
+            return math.inf, math.inf, math.inf, math.inf, 0.0, math.inf, math.inf, -math.inf, 0.0, 0.0
         q1, Q1 = _dist2(w, u, t1)
         D1 = math.sqrt(Q1)
         dist = D0 if wu <= t0 else (D1 if wu >= t1 else math.sqrt(_dist2(w, u, wu)[1]))
@@ -64,10 +73,9 @@ def one_loop_piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2,
         s_lo = max(dlo, 0.0) * ith * (1.0 - SLACK)
         if s_lo >= sigma:
             continue
-        pe = pp = 1.0
+        pe = 1.0
         if dlo > 0.0:
             pe = min(1.0, (math.sqrt(qmax) * (1.0 + SLACK) + r) * (1.0 / dlo))
-            pp = min(1.0, rho * (1.0 / dlo))
         s_hi = (dmax * (1.0 + SLACK) + r) * it * (1.0 + SLACK)
         ln = t1 - t0
         it3 = it * it * it
@@ -81,12 +89,19 @@ def one_loop_piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2,
             u_hi = min(s_hi * s_hi * inv_s2, 1.0)
             bh += ln * cn * w1 * it3
             bl += ln * cn * _ipow(1.0 - u_hi, m - 1) * (ith * ith * ith)
-            sec = ln * cn * _second_sup(u_lo, u_hi, m) * it3
-            a += sec * pe * pe
-            ap += sec * pp * pp
+            a += ln * cn * _second_sup(u_lo, u_hi, m) * it3 * pe * pe
+            least = min(_radial(u_lo, kap_lo, m), _radial(u_hi, kap_lo, m))
+            uc = min(max(3.0 / (2.0 * m - 1.0), u_lo), u_hi)
+            top = min(_radial(min(max(ustar, u_lo), u_hi), kap_hi, m), _radial(uc, 2.0 * (m - 1.0) * uc - 1.0, m))
+            if s_hi >= sigma:
+                least = min(least, 0.0)
+                top = max(top, 0.0)
+            ru += ln * cn * top * it3
+            rl += ln * cn * least * it3
     if m < 2:
         bh = math.inf
-    return g, h, f, bh, bl, a, ap
+    zm, zn = cb._cross_reach.py_func(w[0], w[1], w[2], u[0], u[1], u[2], wu, rho_c, r)
+    return g, h, f, bh, bl, a, ru, rl, zm, zn
 
 
 def _across(cw, aw, nw, t0, t1, r, dlo):

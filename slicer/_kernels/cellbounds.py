@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numba import prange
 
-from .._jit import inline_kernel, parallel_kernel, unrefcounted_kernel
+from .._jit import inline_kernel, kernel, parallel_kernel, unrefcounted_kernel
 from .borrow import borrow, keep_alive
 from .field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 from .raysupport import kprime_max
@@ -140,6 +140,15 @@ def _curvature_sup(u, w1, m, cn, k2):
 
 
 @inline_kernel
+def _radial(u, kap, m):
+    """``(1 − u)^(m−2) (κ + u)``: the radial second derivative's integrand of an
+    untapered segment over ``N n/σ² / τ³`` (docs/math.md §10, "Across the axis"),
+    ``κ = 2(m − 1) ρ²/(στ)² − 1``; in u it rises up to
+    ``u* = (1 − (m − 2) κ)/(m − 1)`` and then falls."""
+    return _ipow(1.0 - u, m - 2) * (kap + u)
+
+
+@inline_kernel
 def _second_sup(ulo, uhi, m):
     """``sup 2(m − 1) u (1 − u)^(m−2)`` over ``u`` in ``[ulo, uhi]`` (within [0, 1];
     it rises up to ``u = 1/(m − 1)`` and then falls; for m = 2 it is 2u)."""
@@ -152,9 +161,9 @@ def _second_sup(ulo, uhi, m):
 
 #: rows of a disc's work area (:func:`_piece_bounds`), each ``pieces + 1`` long:
 #: the pieces' ends (arc length, squared in-plane and full distance from the
-#: centre, 1/radius), then per piece whether it acts and its seven terms
-_T, _QI, _DI, _IT, _ON, _G, _H, _F, _BH, _BL, _A, _AP = range(12)
-_ROWS = 12
+#: centre, 1/radius), then per piece whether it acts and its eight terms
+_T, _QI, _DI, _IT, _ON, _G, _H, _F, _BH, _BL, _A, _RU, _RL = range(13)
+_ROWS = 13
 
 
 @inline_kernel
@@ -182,11 +191,14 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces,
     the pieces to the bit.
 
     Returns ``g`` (in-plane slope), ``h`` (the integrand's Hessian norm),
-    ``f`` (value), and the three sums of the split Hessian (docs/math.md §10):
+    ``f`` (value), the sums of the split Hessian (docs/math.md §10):
     ``bh``, ``bl`` (upper and lower bounds of the isotropic part
-    ``b = ∫ β dt``), ``a`` (upper bound of the trace of the in-plane part
-    of ``∫ α e eᵀ dt``) and ``ap`` (upper bound of ``∫ α ‖e⊥‖² dt``, e⊥ the
-    part of e across the axis)."""
+    ``b = ∫ β dt``) and ``a`` (upper bound of the trace of the in-plane part
+    of ``∫ α e eᵀ dt``), then, for an untapered segment (meaningless for a
+    tapered one), upper and lower bounds ``ru``, ``rl`` of its second
+    derivative across the axis, ``R = ∫ (α (e·n_p)² − β) dt``, and the
+    lower bounds ``zm``, ``zn`` of :func:`_cross_reach` (docs/math.md §10,
+    "Across the axis")."""
     wx = cx - seg[i, AX]
     wy = cy - seg[i, AY]
     wz = cz - seg[i, AZ]
@@ -195,23 +207,73 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces,
     uz = seg[i, UZ]
     wu = wx * ux + wy * uy + wz * uz
     # distance of c from the axis line: every p of the disc is within it + r
-    rho = math.sqrt(max(wx * wx + wy * wy + wz * wz - wu * wu, 0.0)) * (1.0 + SLACK) + r
+    rho_c = math.sqrt(max(wx * wx + wy * wy + wz * wz - wu * wu, 0.0))
+    rho = rho_c * (1.0 + SLACK) + r
     st = pieces + 1
     rows = (work[_T * st:(_T + 1) * st], work[_QI * st:(_QI + 1) * st], work[_DI * st:(_DI + 1) * st],
             work[_IT * st:(_IT + 1) * st])
     if not _piece_ends(rows, wx, wy, wz, ux, uy, uz, seg[i, TAU0], seg[i, DELTA], ta, tb, pieces):
-        return np.inf, np.inf, np.inf, np.inf, 0.0, np.inf, np.inf
+        return np.inf, np.inf, np.inf, np.inf, 0.0, np.inf, np.inf, -np.inf, 0.0, 0.0
     terms = (work[_ON * st:(_ON + 1) * st], work[_G * st:(_G + 1) * st], work[_H * st:(_H + 1) * st],
              work[_F * st:(_F + 1) * st], work[_BH * st:(_BH + 1) * st], work[_BL * st:(_BL + 1) * st],
-             work[_A * st:(_A + 1) * st], work[_AP * st:(_AP + 1) * st])
+             work[_A * st:(_A + 1) * st], work[_RU * st:(_RU + 1) * st], work[_RL * st:(_RL + 1) * st])
     # the distance from c to the axis point nearest it (used by the piece holding it)
     dfoot = math.sqrt(_end_distances(wx, wy, wz, ux, uy, uz, wu)[1])
-    geo = (wu, rho, dfoot, r)
+    geo = (wu, rho, dfoot, r) + _radial_constants(rho_c, rho, r, sigma * seg[i, TAU0], n // 2)
     if n == 6:      # the default kernel: the powers unroll, the piece loop runs on vector lanes
         _piece_terms(rows, terms, geo, pieces, 6, sigma, norm, k1, k2)
     else:
         _piece_terms(rows, terms, geo, pieces, n, sigma, norm, k1, k2)
-    return _piece_sums(terms, pieces, n // 2)
+    g, h, f, bh, bl, a, ru, rl = _piece_sums(terms, pieces, n // 2)
+    zm, zn = _cross_reach(wx, wy, wz, ux, uy, uz, wu, rho_c, r)
+    return g, h, f, bh, bl, a, ru, rl, zm, zn
+
+
+@inline_kernel
+def _radial_constants(rho_c, rho, r, S, m):
+    """``(κ_lo, κ_hi, u*)`` of an untapered segment of support radius ``S = στ``
+    (docs/math.md §10, "Across the axis"): ``κ = 2(m − 1) ρ_p²/S² − 1`` over the
+    disc, ``ρ_p`` within ``[ρ_c − r, rho]`` (rho: the upper bound of ``ρ_c + r``),
+    and ``u*`` where :func:`_radial` with ``κ_hi`` peaks. A zero radius has no
+    bound (:func:`_piece_ends`): its constants are unused."""
+    S2 = S * S
+    S2 = S2 if S2 > 0.0 else 1.0
+    rho_lo = max(rho_c * (1.0 - SLACK) - r, 0.0)
+    kap_lo = 2.0 * (m - 1.0) * rho_lo * rho_lo / S2 * (1.0 - SLACK) - 1.0
+    kap_hi = 2.0 * (m - 1.0) * rho * rho / S2 * (1.0 + SLACK) - 1.0
+    ustar = (1.0 - (m - 2.0) * kap_hi) / (m - 1.0) if m >= 2 else 1.0     # m = 1: no second derivatives
+    return kap_lo, kap_hi, ustar
+
+
+@inline_kernel
+def _cross_reach(wx, wy, wz, ux, uy, uz, wu, rho_c, r):
+    """``(zm, zn)``: lower bounds over the disc of ``(m_p·ẑ)²`` and ``(n_p·ẑ)²``,
+    with ``n_p`` the unit vector from the axis line to p (across the axis) and
+    ``m_p = u × n_p`` (docs/math.md §10, "Across the axis"): ``m_p·ẑ = n_p·k``
+    with ``k = ẑ × u``, ``n_p·k = (p − a)·k / ρ_p`` and ``|(p − c)·k| <= r |k|``;
+    ``n_p·ẑ = (p − a)·ẑ′ / ρ_p`` with ``ẑ′ = ẑ − u_z u`` and
+    ``|(p − c)·ẑ′| <= r |u_z| |k|``; ``ρ_p <= ρ_c + r``. 0 where nothing is proven."""
+    kn = math.sqrt(ux * ux + uy * uy)
+    big = (rho_c + r) * (1.0 + SLACK) + SLACK * (abs(wx) + abs(wy) + abs(wz))
+    if not big > 0.0:
+        return 0.0, 0.0
+    # (c − a)·k with k = (−u_y, u_x, 0); (c − a)·ẑ′ = w_z − u_z (w·u)
+    ck = abs(ux * wy - uy * wx) - SLACK * (abs(wx) + abs(wy)) - r * kn * (1.0 + SLACK)
+    cz = abs(wz - uz * wu) - SLACK * (abs(wz) + abs(uz * wu)) - r * abs(uz) * kn * (1.0 + SLACK)
+    lk = min(max(ck, 0.0) / big, 1.0)
+    lz = min(max(cz, 0.0) / big, 1.0)
+    return lk * lk, lz * lz
+
+
+@inline_kernel
+def _plane_eigen(R, b, zu, zn, zm):
+    """Largest and least eigenvalues of ``diag(0, R, −b)`` (in the frame u, n_p,
+    m_p) restricted to the plane whose unit normal has the squared components
+    ``zu, zn, zm`` there: the roots of ``μ² − B μ + C``, ``B = R (zu + zm) −
+    b (zu + zn)``, ``C = −zu R b`` (docs/math.md §10, "Across the axis")."""
+    B = R * (zu + zm) - b * (zu + zn)
+    q = math.sqrt(max(B * B + 4.0 * zu * R * b, 0.0))
+    return 0.5 * (B + q), 0.5 * (B - q)
 
 
 @inline_kernel
@@ -238,13 +300,14 @@ def _piece_ends(rows, wx, wy, wz, ux, uy, uz, tau0, d, ta, tb, pieces):
 @inline_kernel
 def _piece_terms(rows, terms, geo, pieces, n, sigma, norm, k1, k2):
     """Each piece's terms of :func:`_piece_bounds` into ``terms = (on, g, h,
-    f, bh, bl, a, ap)`` (``on``: 1 where the piece acts, else 0 and its
-    terms unused), from its ends ``rows`` and ``geo = (wu, rho, dfoot, r)``:
-    the foot's arc length, the disc's reach from the axis line, the
-    distance from ``c`` to the foot, the disc radius."""
+    f, bh, bl, a, ru, rl)`` (``on``: 1 where the piece acts, else 0 and its
+    terms unused), from its ends ``rows`` and ``geo = (wu, rho, dfoot, r,
+    κ_lo, κ_hi, u*)``: the foot's arc length, the disc's reach from the axis
+    line, the distance from ``c`` to the foot, the disc radius, and the
+    constants of the radial terms (:func:`_radial_constants`)."""
     T, Qi, Di, IT = rows
-    ON, TG, TH, TF, TBH, TBL, TA, TAP = terms
-    wu, rho, dfoot, r = geo
+    ON, TG, TH, TF, TBH, TBL, TA, TRU, TRL = terms
+    wu, rho, dfoot, r, kap_lo, kap_hi, ustar = geo
     m = n // 2
     inv_s2 = 1.0 / (sigma * sigma)
     cn = norm * n * inv_s2
@@ -282,14 +345,25 @@ def _piece_terms(rows, terms, geo, pieces, n, sigma, norm, k1, k2):
             TBL[j] = ln * cn * _ipow(1.0 - u_hi, m - 1) * (ith * ith * ith)
             sec = ln * cn * _second_sup(u_lo, u_hi, m) * it3
             TA[j] = sec * pe * pe
-            TAP[j] = sec * pp * pp
+            # an untapered segment's radial integrand (τ fixed), from below (at an
+            # end of [u_lo, u_hi]) and above (at u* clamped); ρ_p <= ‖p − q‖ puts
+            # ρ_p²/(στ)² <= u, so κ <= 2(m − 1) u − 1 too, which peaks at 3/(2m − 1)
+            least = min(_radial(u_lo, kap_lo, m), _radial(u_hi, kap_lo, m))
+            uc = min(max(3.0 / (2.0 * m - 1.0), u_lo), u_hi)
+            top = min(_radial(min(max(ustar, u_lo), u_hi), kap_hi, m), _radial(uc, 2.0 * (m - 1.0) * uc - 1.0, m))
+            # 0 beyond the support
+            if s_hi >= sigma:
+                least = min(least, 0.0)
+                top = max(top, 0.0)
+            TRU[j] = ln * cn * top * it3
+            TRL[j] = ln * cn * least * it3
 
 
 @inline_kernel
 def _piece_sums(terms, pieces, m):
     """The sums of :func:`_piece_bounds` over the acting pieces, in piece order."""
-    ON, TG, TH, TF, TBH, TBL, TA, TAP = terms
-    g = h = f = bh = bl = a = ap = 0.0
+    ON, TG, TH, TF, TBH, TBL, TA, TRU, TRL = terms
+    g = h = f = bh = bl = a = ru = rl = 0.0
     for j in range(pieces):
         if ON[j] != 0.0:
             g += TG[j]
@@ -299,10 +373,11 @@ def _piece_sums(terms, pieces, m):
                 bh += TBH[j]
                 bl += TBL[j]
                 a += TA[j]
-                ap += TAP[j]
+                ru += TRU[j]
+                rl += TRL[j]
     if m < 2:
         bh = np.inf
-    return g, h, f, bh, bl, a, ap
+    return g, h, f, bh, bl, a, ru, rl
 
 
 @inline_kernel
@@ -340,6 +415,69 @@ def _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
 GOLDEN = 1.6180339887498950
 
 
+@inline_kernel
+def _disc_sums(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, work):
+    """The sums over the segments ``lst[a:b]`` behind :func:`_disc`: ``g``, ``h``
+    (summed Hessian norms), ``u``, ``low`` and ``top`` (every in-plane second
+    derivative of F over the disc lies in ``[−low, top]``, before slack) and
+    ``mag`` (the size of the terms behind ``top``, for its rounding slack)."""
+    g = 0.0
+    h = 0.0
+    u = 0.0
+    low = 0.0
+    top = 0.0
+    mag = 0.0
+    for q in range(a, b):
+        i = lst[q]
+        ta, tb = _reach_interval(seg, i, cx, cy, z, r, sigma)
+        if not tb > ta:
+            continue
+        k = piece_count(ta, tb, r, pieces)
+        gi, hi, ui, bhi, bli, ai, rui, rli, zmi, zni = _piece_bounds(seg, i, cx, cy, z, r, ta, tb, n, sigma, norm,
+                                                                      k1, k2, k, work)
+        g += gi
+        h += hi
+        u += ui
+        # this segment's in-plane second derivatives lie in [-lo, up]
+        lo = bhi
+        up = ai - bli
+        mag += ai + bli
+        if seg[i, DELTA] == 0.0:   # untapered: the axial derivatives are end terms
+            w = _end_slopes(seg, i, cx, cy, z, r, n, sigma, norm, k1)
+            lo, up = _across_axis(seg[i, UZ], bhi, bli, rui, rli, zmi, zni, w, lo, up)
+            mag += w + 4.0 * SLACK * (bhi + abs(rui) + abs(rli))
+        low += lo
+        top += up
+    return g, h, u, low, top, mag
+
+
+@inline_kernel
+def _across_axis(uz, bh, bl, ru, rl, zm, zn, w, lo, up):
+    """``(lo, up)`` of an untapered segment sharpened across its axis
+    (docs/math.md §10, "Across the axis"): in the frame ``(u, n_p, m_p)`` its
+    Hessian is ``diag(0, R, −b)`` plus end terms of norm at most
+    ``GOLDEN w`` along the plane, ``R`` in ``[rl, ru]``, ``b`` in ``[bl, bh]``,
+    and the plane's unit normal has the squared components ``u_z²``,
+    ``(n_p·ẑ)² >= zn`` and ``(m_p·ẑ)² >= zm``; the largest eigenvalue of the
+    restriction to the plane falls as ``(n_p·ẑ)²`` grows and the least one
+    too (when ``R >= 0``), so both are bounded at the extreme normals
+    (:func:`_plane_eigen`)."""
+    eps = 4.0 * SLACK * (bh + abs(ru) + abs(rl))
+    uz2 = uz * uz
+    rest = max(1.0 - uz2, 0.0)            # (n_p·ẑ)² + (m_p·ẑ)²
+    zn = min(zn, rest)
+    zm = min(zm, rest)
+    high, _ = _plane_eigen(max(ru + eps, 0.0), bl, uz2, zn, rest - zn)
+    up = min(up, high + GOLDEN * w + eps)
+    if rl - eps >= 0.0:
+        _, least = _plane_eigen(rl - eps, bh, uz2, rest - zm, zm)
+        lo = min(lo, -least + GOLDEN * w + eps)
+    else:                                  # R may be negative: -b (v·m_p)² + min(R, 0) (v·n_p)²
+        neg = min(eps - rl, bh)
+        lo = min(lo, neg + (bh - neg) * (1.0 - zm) + GOLDEN * w + eps)
+    return lo, up
+
+
 @unrefcounted_kernel
 def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, work):
     """:func:`disc_bounds` of one disc from the segments ``lst[a:b]`` (in that
@@ -350,35 +488,29 @@ def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, work):
     -------
     G, H, U : float
     """
-    g = 0.0
-    h = 0.0
-    u = 0.0
-    bh = 0.0
-    top = 0.0
-    mag = 0.0
-    for q in range(a, b):
-        i = lst[q]
-        ta, tb = _reach_interval(seg, i, cx, cy, z, r, sigma)
-        if not tb > ta:
-            continue
-        k = piece_count(ta, tb, r, pieces)
-        gi, hi, ui, bhi, bli, ai, api = _piece_bounds(seg, i, cx, cy, z, r, ta, tb, n, sigma, norm, k1, k2, k,
-                                                       work)
-        g += gi
-        h += hi
-        u += ui
-        bh += bhi
-        # this segment's in-plane second derivatives lie in [-bh, up]
-        up = ai - bli
-        mag += ai + bli
-        if seg[i, DELTA] == 0.0:   # untapered: the axial derivatives are end terms
-            w = _end_slopes(seg, i, cx, cy, z, r, n, sigma, norm, k1)
-            up = min(up, max(api - bli, 0.0) + GOLDEN * w)
-            mag += api + w
-        top += up
-    # split Hessian: every in-plane second derivative lies in [-bh, top]
-    split = max(bh, top + 4.0 * SLACK * mag) * (1.0 + SLACK)
+    g, h, u, low, top, mag = _disc_sums(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, work)
+    # split Hessian: every in-plane second derivative lies in [-low, top]
+    split = max(low, top + 4.0 * SLACK * mag) * (1.0 + SLACK)
     return g * (1.0 + SLACK), min(h * (1.0 + SLACK), split), u * (1.0 + SLACK)
+
+
+@kernel
+def curvature_range(seg, ids, cx, cy, z, r, n, sigma, norm, pieces=PIECES):
+    """Bounds ``(lo, hi)``, (c,) float64 each, 1/mm², such that every in-plane
+    second derivative ``vᵀ ∇²F v`` (v a unit vector of the plane) over each
+    disc lies in ``[−lo, hi]``: the two sides of the split Hessian that
+    :func:`disc_bounds` takes the larger of (arguments as there)."""
+    k1 = kprime_max(n, sigma, norm)
+    k2 = kernel_curvature_max(n, sigma, norm)
+    work = np.empty(disc_work(pieces))
+    lo = np.empty(cx.shape[0])
+    hi = np.empty(cx.shape[0])
+    for j in range(cx.shape[0]):
+        _, _, _, low, top, mag = _disc_sums(seg, ids, 0, ids.shape[0], cx[j], cy[j], z, r[j], n, sigma, norm, k1, k2,
+                                            pieces, work)
+        lo[j] = low * (1.0 + SLACK)
+        hi[j] = (top + 4.0 * SLACK * mag) * (1.0 + SLACK)
+    return lo, hi
 
 
 def disc_bounds(seg, ids, cx, cy, z, r, n, sigma, norm, pieces=PIECES):
