@@ -187,11 +187,15 @@ def test_split_hessian_holds_on_each_side_beside_a_long_strut(direction, radius,
     u = np.array(direction) / np.linalg.norm(direction)
     a = -10.0 * u
     skel = Skeleton([a, -a], [[0, 1]], [[radius, radius]], degree=degree)
+    _check(skel, _beside(u, off * radius, phi), r, seed)
+
+
+def _beside(u: np.ndarray, dist: float, phi: float) -> np.ndarray:
+    """The offset ``dist`` from an axis along ``u``, at angle ``phi`` around it."""
     n1 = np.cross(u, [0.0, 0.0, 1.0]) if abs(u[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
     n1 = n1 / np.linalg.norm(n1)
     n2 = np.cross(u, n1)
-    p = off * radius * (math.cos(phi) * n1 + math.sin(phi) * n2)
-    _check(skel, p, r, seed)
+    return dist * (math.cos(phi) * n1 + math.sin(phi) * n2)
 
 
 @given(st.floats(0.0, 5.0), st.floats(1e-6, 2.0), st.sampled_from([1, 2, 4, 8, 10, 32]))
@@ -412,10 +416,7 @@ def test_across_axis_terms_hold_at_sampled_points(direction, length, radius, t, 
     skel = Skeleton([a, a + length * u], [[0, 1]], [[radius, radius]], degree=degree)
     seg = point_grid(skel)[0]
     a, u = seg[0, :3], seg[0, 3:6]         # the table orients the segment
-    n1 = np.cross(u, [0.0, 0.0, 1.0]) if abs(u[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
-    n1 = n1 / np.linalg.norm(n1)
-    n2 = np.cross(u, n1)
-    c = a + t * length * u + off * radius * (math.cos(phi) * n1 + math.sin(phi) * n2)
+    c = a + t * length * u + _beside(u, off * radius, phi)
     ta, tb = cb._reach_interval(seg, 0, c[0], c[1], c[2], r, skel.sigma)
     if not tb > ta:
         return

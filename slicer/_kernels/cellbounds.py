@@ -444,8 +444,8 @@ def _disc_sums(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, wor
         mag += ai + bli
         if seg[i, DELTA] == 0.0:   # untapered: the axial derivatives are end terms
             w = _end_slopes(seg, i, cx, cy, z, r, n, sigma, norm, k1)
-            lo, up = _across_axis(seg[i, UZ], bhi, bli, rui, rli, zmi, zni, w, lo, up)
-            mag += w + 4.0 * SLACK * (bhi + abs(rui) + abs(rli))
+            lo, up, eps = _across_axis(seg[i, UZ], bhi, bli, rui, rli, zmi, zni, w, lo, up)
+            mag += w + eps
         low += lo
         top += up
     return g, h, u, low, top, mag
@@ -453,7 +453,7 @@ def _disc_sums(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, wor
 
 @inline_kernel
 def _across_axis(uz, bh, bl, ru, rl, zm, zn, w, lo, up):
-    """``(lo, up)`` of an untapered segment sharpened across its axis
+    """``(lo, up, eps)`` of an untapered segment sharpened across its axis
     (docs/math.md §10, "Across the axis"): in the frame ``(u, n_p, m_p)`` its
     Hessian is ``diag(0, R, −b)`` plus end terms of norm at most
     ``GOLDEN w`` along the plane, ``R`` in ``[rl, ru]``, ``b`` in ``[bl, bh]``,
@@ -461,7 +461,7 @@ def _across_axis(uz, bh, bl, ru, rl, zm, zn, w, lo, up):
     ``(n_p·ẑ)² >= zn`` and ``(m_p·ẑ)² >= zm``; the largest eigenvalue of the
     restriction to the plane falls as ``(n_p·ẑ)²`` grows and the least one
     too (when ``R >= 0``), so both are bounded at the extreme normals
-    (:func:`_plane_eigen`)."""
+    (:func:`_plane_eigen`). ``eps``: the rounding slack added to both sides."""
     eps = 4.0 * SLACK * (bh + abs(ru) + abs(rl))
     uz2 = uz * uz
     rest = max(1.0 - uz2, 0.0)            # (n_p·ẑ)² + (m_p·ẑ)²
@@ -475,7 +475,14 @@ def _across_axis(uz, bh, bl, ru, rl, zm, zn, w, lo, up):
     else:                                  # R may be negative: -b (v·m_p)² + min(R, 0) (v·n_p)²
         neg = min(eps - rl, bh)
         lo = min(lo, neg + (bh - neg) * (1.0 - zm) + GOLDEN * w + eps)
-    return lo, up
+    return lo, up, eps
+
+
+@inline_kernel
+def _split_sides(low, top, mag):
+    """The split Hessian's sides with their slack: every in-plane second
+    derivative over the disc lies in ``[−lo, hi]`` (:func:`_disc_sums`)."""
+    return low * (1.0 + SLACK), (top + 4.0 * SLACK * mag) * (1.0 + SLACK)
 
 
 @unrefcounted_kernel
@@ -489,8 +496,8 @@ def _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, work):
     G, H, U : float
     """
     g, h, u, low, top, mag = _disc_sums(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, work)
-    # split Hessian: every in-plane second derivative lies in [-low, top]
-    split = max(low, top + 4.0 * SLACK * mag) * (1.0 + SLACK)
+    lo, hi = _split_sides(low, top, mag)
+    split = max(lo, hi)
     return g * (1.0 + SLACK), min(h * (1.0 + SLACK), split), u * (1.0 + SLACK)
 
 
@@ -508,8 +515,7 @@ def curvature_range(seg, ids, cx, cy, z, r, n, sigma, norm, pieces=PIECES):
     for j in range(cx.shape[0]):
         _, _, _, low, top, mag = _disc_sums(seg, ids, 0, ids.shape[0], cx[j], cy[j], z, r[j], n, sigma, norm, k1, k2,
                                             pieces, work)
-        lo[j] = low * (1.0 + SLACK)
-        hi[j] = (top + 4.0 * SLACK * mag) * (1.0 + SLACK)
+        lo[j], hi[j] = _split_sides(low, top, mag)
     return lo, hi
 
 
