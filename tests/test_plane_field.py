@@ -128,11 +128,16 @@ def test_a_slanted_struts_footprint_is_its_section_not_its_box():
     assert hi[0, 1] - lo[0, 1] == pytest.approx(0.8, rel=1e-6)
 
 
-def test_fewer_pieces_give_looser_disc_bounds():
+@pytest.mark.parametrize("z", [2.3, 1.23])
+def test_fewer_pieces_give_looser_disc_bounds(z):
+    """Near the octet's nodes (z = 2.3, 0.2 mm below a layer of them) the discs'
+    support balls reach strut ends and the pieces bound the field: fewer pieces,
+    looser bounds. Half-way between the layers of nodes (z = 1.23) every disc is far
+    from the ends of the struts the plane cuts, and its bounds are the lines' closed
+    form (docs/math.md §10, "Away from the ends") whatever the pieces."""
     skel = load_sample("octet_2x2x2")
     table = segment_table(skel)
     rng = np.random.default_rng(2)
-    z = 1.23
     ids = plane_segments(skel, z)
     lo, hi = support_boxes(skel)
     k = 4000
@@ -145,10 +150,13 @@ def test_fewer_pieces_give_looser_disc_bounds():
     assert all(np.array_equal(a, b) for a, b in zip(fine, disc_bounds(*args, PIECES)))
     for f, c in zip(fine, coarse):
         assert (f <= c * (1 + 1e-12)).all()
-        assert (f < 0.9 * c).any()
+        if z > 2.0:
+            assert (f < 0.9 * c).any()
+        else:
+            assert np.array_equal(f, c) and (f > 0).sum() > 500
 
 
-@pytest.mark.parametrize("model, z, div", [("octet_2x2x2", 1.05, 1), ("octet_2x2x2", 1.05, 4), ("octet_2x2x2", 2.9, 1),
+@pytest.mark.parametrize("model, z, div", [("octet_2x2x2", 1.05, 1), ("octet_2x2x2", 0.6, 4), ("octet_2x2x2", 2.9, 1),
                                            ("octet_2x2x2", 2.9, 4), ("jellyfish", None, 1)])
 def test_cheap_bounds_first_settle_cells_as_the_full_ones(model, z, div):
     """Cells classified with the cheap bounds first (root cells, ``div = 1``, and

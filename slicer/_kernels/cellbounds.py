@@ -14,6 +14,10 @@ and the in-plane part of ``e`` are bounded; summing over pieces and
 segments gives ``G`` (in-plane slope), ``H`` (in-plane Hessian: the smaller
 of the summed norms and ``max(b, tr M − b)``, ``M`` the integral of the
 positive semi-definite part, ``b`` of the isotropic one) and ``U`` (value).
+Where no support ball of the disc reaches an untapered segment's ends,
+the segment's field over the disc is the whole line's, a function of the
+distance to the axis in closed form: its extremes replace the pieces
+(:func:`_line_bounds`, docs/math.md §10, "Away from the ends").
 The roots are widened by a relative margin and the sums scaled by
 ``1 ± 1e-9`` (no directed rounding in Numba: a margin far above the
 rounding error of the few operations involved).
@@ -173,6 +177,21 @@ def disc_work(pieces):
     return _ROWS * (max(pieces, 1) + 1)
 
 
+@inline_kernel
+def _axis_frame(seg, i, cx, cy, cz):
+    """``w = c − a`` of segment ``i``, its axis ``u``, ``w·u`` and the distance
+    ``ρ_c`` of ``c`` from the axis line (every p of a disc of radius r around c
+    is within ``ρ_c + r`` of it): ``(wx, wy, wz, ux, uy, uz, wu, rho_c)``."""
+    wx = cx - seg[i, AX]
+    wy = cy - seg[i, AY]
+    wz = cz - seg[i, AZ]
+    ux = seg[i, UX]
+    uy = seg[i, UY]
+    uz = seg[i, UZ]
+    wu = wx * ux + wy * uy + wz * uz
+    return wx, wy, wz, ux, uy, uz, wu, math.sqrt(max(wx * wx + wy * wy + wz * wz - wu * wu, 0.0))
+
+
 @unrefcounted_kernel
 def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces, work):
     """Slope, curvature and value bounds of segment ``i`` over the disc, from the
@@ -199,15 +218,7 @@ def _piece_bounds(seg, i, cx, cy, cz, r, ta, tb, n, sigma, norm, k1, k2, pieces,
     derivative across the axis, ``R = ∫ (α (e·n_p)² − β) dt``, and the
     lower bounds ``zm``, ``zn`` of :func:`_cross_reach` (docs/math.md §10,
     "Across the axis")."""
-    wx = cx - seg[i, AX]
-    wy = cy - seg[i, AY]
-    wz = cz - seg[i, AZ]
-    ux = seg[i, UX]
-    uy = seg[i, UY]
-    uz = seg[i, UZ]
-    wu = wx * ux + wy * uy + wz * uz
-    # distance of c from the axis line: every p of the disc is within it + r
-    rho_c = math.sqrt(max(wx * wx + wy * wy + wz * wz - wu * wu, 0.0))
+    wx, wy, wz, ux, uy, uz, wu, rho_c = _axis_frame(seg, i, cx, cy, cz)
     rho = rho_c * (1.0 + SLACK) + r
     st = pieces + 1
     rows = (work[_T * st:(_T + 1) * st], work[_QI * st:(_QI + 1) * st], work[_DI * st:(_DI + 1) * st],
@@ -432,6 +443,18 @@ def _disc_sums(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, wor
         ta, tb = _reach_interval(seg, i, cx, cy, z, r, sigma)
         if not tb > ta:
             continue
+        if seg[i, DELTA] == 0.0 and n >= 4 and ta > 0.0 and tb < seg[i, LEN]:
+            # no support ball of the disc reaches an end (the interval was not clipped):
+            # the field is the whole line's, with no end terms
+            gi, hi, ui, bhi, bli, rui, rli, zmi, zni = _line_bounds(seg, i, cx, cy, z, r, n // 2, sigma, norm)
+            g += gi
+            h += hi
+            u += ui
+            lo, up, eps = _across_axis(seg[i, UZ], bhi, bli, rui, rli, zmi, zni, 0.0, max(bhi, -rli), max(rui, 0.0))
+            mag += bhi + abs(rui) + abs(rli) + eps
+            low += lo
+            top += up
+            continue
         k = piece_count(ta, tb, r, pieces)
         gi, hi, ui, bhi, bli, ai, rui, rli, zmi, zni = _piece_bounds(seg, i, cx, cy, z, r, ta, tb, n, sigma, norm,
                                                                       k1, k2, k, work)
@@ -449,6 +472,69 @@ def _disc_sums(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, wor
         low += lo
         top += up
     return g, h, u, low, top, mag
+
+
+@inline_kernel
+def _line_phi(v, m):
+    """``(1 − v)^(m − 3/2) (2 m v − 1)``: the line's second derivative across its
+    axis over ``C = N σ B_m (2m + 1)/S²`` at ``v = ρ²/S²`` (``m >= 2``); it rises
+    up to ``v = 3/(2m)`` and then falls to 0 at ``v = 1``."""
+    a = max(1.0 - v, 0.0)
+    return _ipow(a, m - 2) * math.sqrt(a) * (2.0 * m * v - 1.0)
+
+
+@unrefcounted_kernel
+def _line_bounds(seg, i, cx, cy, z, r, m, sigma, norm):
+    """Bounds over the disc of an untapered segment (``m >= 2``) whose support
+    balls, from every point of the disc, meet its axis line only within the
+    segment: there the field is that of the whole line, ``f∞(ρ) = K A^(m + 1/2)``
+    with ``K = N σ B_m``, ``A = 1 − ρ²/S²``, ``S = στ`` and ``ρ`` the distance
+    to the axis (docs/math.md §10, "Away from the ends"), its Hessian exactly
+    ``diag(0, R, −b)`` in the frame ``(u, n_p, m_p)`` with ``b = −f∞′/ρ =
+    C A^(m − 1/2)`` and ``R = f∞″ = C A^(m − 3/2) (2 m v − 1)``, ``v = ρ²/S²``,
+    ``C = K (2m + 1)/S²``. Over the disc ``ρ`` lies in ``[ρ_c − r, ρ_c + r]``.
+
+    Returns ``g, h, u, bh, bl, ru, rl, zm, zn`` as :func:`_piece_bounds` does
+    (no ``a``: R and b are bounded directly; ``h`` the larger of ``|R|`` and
+    ``b``). The extremes over ``[ρ_c − r, ρ_c + r]``, rounded outwards, are
+    at its ends or at the one turn of each function: they are the true ones."""
+    wx, wy, wz, ux, uy, uz, wu, rho_c = _axis_frame(seg, i, cx, cy, z)
+    S = sigma * seg[i, TAU0]
+    S2 = S * S
+    bm = 2.0
+    for k in range(1, m + 1):
+        bm *= 2.0 * k / (2.0 * k + 1.0)
+    K = norm * sigma * bm
+    C = K * (2.0 * m + 1.0) / S2
+    rlo = max(rho_c * (1.0 - SLACK) - r, 0.0)
+    rhi = (rho_c + r) * (1.0 + SLACK) + SLACK * (abs(wx) + abs(wy) + abs(wz))
+    vlo = rlo * rlo / S2 * (1.0 - SLACK)
+    vhi = min(rhi * rhi / S2 * (1.0 + SLACK), 1.0)
+    alo = max(1.0 - vhi, 0.0)
+    ahi = max(1.0 - vlo, 0.0)
+    up = 1.0 + 8.0 * SLACK
+    dn = 1.0 - 8.0 * SLACK
+    # value and b fall as ρ grows
+    u = K * _ipow(ahi, m) * math.sqrt(ahi) * up
+    bh = C * _ipow(ahi, m - 1) * math.sqrt(ahi) * up
+    bl = C * _ipow(alo, m - 1) * math.sqrt(alo) * dn
+    # R: its only turn in [0, 1] is a maximum, at v = 3/(2m)
+    pa = _line_phi(vlo, m)
+    pb = _line_phi(vhi, m)
+    vs = 3.0 / (2.0 * m)
+    top = _line_phi(vs, m) if vlo <= vs <= vhi else max(pa, pb)
+    least = min(pa, pb)
+    ru = C * top * (up if top > 0.0 else dn)
+    rl = C * least * (dn if least > 0.0 else up)
+    zm, zn = _cross_reach(wx, wy, wz, ux, uy, uz, wu, rho_c, r)
+    # |f∞′| = 2 K (m + 1/2) ρ A^(m − 1/2) / S²: ρ A^(m − 1/2) rises up to ρ² = S²/(2m), then falls;
+    # the in-plane part of n_p is at most sqrt(1 − zn)
+    rs = S / math.sqrt(2.0 * m)
+    rg = rs if rlo <= rs <= rhi else (rhi if rhi < rs else rlo)
+    ag = max(1.0 - rg * rg / S2, 0.0)
+    g = C * rg * _ipow(ag, m - 1) * math.sqrt(ag) * math.sqrt(max(1.0 - zn, 0.0)) * up * up
+    h = max(bh, abs(ru), abs(rl))
+    return g, h, u, bh, bl, ru, rl, zm, zn
 
 
 @inline_kernel
