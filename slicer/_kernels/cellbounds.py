@@ -443,30 +443,28 @@ def _disc_sums(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, wor
         ta, tb = _reach_interval(seg, i, cx, cy, z, r, sigma)
         if not tb > ta:
             continue
-        if seg[i, DELTA] == 0.0 and n >= 4 and ta > 0.0 and tb < seg[i, LEN]:
-            # no support ball of the disc reaches an end (the interval was not clipped):
-            # the field is the whole line's, with no end terms
+        untapered = seg[i, DELTA] == 0.0
+        # no support ball of the disc reaches an end (the interval was not clipped):
+        # the field is the whole line's, with no end terms
+        line = untapered and n >= 4 and ta > 0.0 and tb < seg[i, LEN]
+        if line:
             gi, hi, ui, bhi, bli, rui, rli, zmi, zni = _line_bounds(seg, i, cx, cy, z, r, n // 2, sigma, norm)
-            g += gi
-            h += hi
-            u += ui
-            lo, up, eps = _across_axis(seg[i, UZ], bhi, bli, rui, rli, zmi, zni, 0.0, max(bhi, -rli), max(rui, 0.0))
-            mag += bhi + abs(rui) + abs(rli) + eps
-            low += lo
-            top += up
-            continue
-        k = piece_count(ta, tb, r, pieces)
-        gi, hi, ui, bhi, bli, ai, rui, rli, zmi, zni = _piece_bounds(seg, i, cx, cy, z, r, ta, tb, n, sigma, norm,
-                                                                      k1, k2, k, work)
+            lo = max(bhi, -rli)
+            up = max(rui, 0.0)
+            mag += bhi + abs(rui) + abs(rli)
+        else:
+            k = piece_count(ta, tb, r, pieces)
+            gi, hi, ui, bhi, bli, ai, rui, rli, zmi, zni = _piece_bounds(seg, i, cx, cy, z, r, ta, tb, n, sigma, norm,
+                                                                          k1, k2, k, work)
+            lo = bhi
+            up = ai - bli
+            mag += ai + bli
+        # this segment's in-plane second derivatives lie in [-lo, up]
         g += gi
         h += hi
         u += ui
-        # this segment's in-plane second derivatives lie in [-lo, up]
-        lo = bhi
-        up = ai - bli
-        mag += ai + bli
-        if seg[i, DELTA] == 0.0:   # untapered: the axial derivatives are end terms
-            w = _end_slopes(seg, i, cx, cy, z, r, n, sigma, norm, k1)
+        if untapered:   # the axial derivatives are end terms
+            w = 0.0 if line else _end_slopes(seg, i, cx, cy, z, r, n, sigma, norm, k1)
             lo, up, eps = _across_axis(seg[i, UZ], bhi, bli, rui, rli, zmi, zni, w, lo, up)
             mag += w + eps
         low += lo
