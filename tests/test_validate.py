@@ -173,6 +173,52 @@ def test_error_time_contours_compares_the_two_routes_on_one_grid(tmp_path):
     assert all(r["contour_vertices"] > 0 for r in rows)
 
 
+@pytest.mark.parametrize("method", ["interval", "dense"])
+def test_error_time_routes_end_as_the_outputs_do_on_any_thread_count(method):
+    """Each route's kept layers are the MultiPolygons the contour outputs write
+    from its rings (:func:`slicer.contours.finish_rings`: simplified at tol/4
+    where there is a tolerance), computed here layer by layer, and the same
+    with one thread or two (the layers run on the threads)."""
+    from sample_lattices import load_sample
+    from slicer._kernels.launch import numba_threads
+    from slicer.contours import finish_rings, grid_box, mask_rings
+    from slicer.field import evaluate
+    from slicer.grid import make_grid
+    from slicer.slicing import trace
+    from validation.error_time import run_config, square_box
+    from validation.metrics import polygon_rings
+
+    skel = load_sample("cubic_2x2x2")
+    tol = 1e-2 if method == "interval" else None
+    cfg = {"method": method, "pixels": 40, "layers": 12, "tol": tol, "bucket": 64 if tol else None}
+    keep = {3, 6, 9}
+    runs = []
+    for threads in (1, 2):
+        with numba_threads(threads):
+            runs.append(run_config(skel, cfg, keep)[1])
+    (x0, y0, x1, y1), (z0, z1) = square_box(skel)
+    h = (z1 - z0) / 12
+    grid = make_grid(skel.support_bounds(), (x1 - x0) / 40, layer_height=h, bounds=(x0, y0, z0, x1, y1, z1))
+    if method == "interval":
+        masks = list(trace(skel, grid).iter_layers(1))
+    simplified = 0
+    for k in sorted(keep):
+        z = grid.centres_z()[k]
+        if method == "interval":
+            rings = mask_rings(skel, masks[k].astype(bool), grid.origin[:2], grid.pixel_size, z, tol)
+        else:
+            X, Y = np.meshgrid(grid.centres_x(), grid.centres_y())
+            p = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, z)])
+            V = evaluate(skel, p)[0].reshape(grid.height, grid.width)
+            rings = mask_rings(skel, V >= 1.0, grid.origin[:2], grid.pixel_size, z, refine=False, values=V)
+        want = polygon_rings(finish_rings(rings, tol, grid_box(grid)))
+        for got in runs:
+            assert len(got[k]) == len(want) and all(np.array_equal(a, b) for a, b in zip(got[k], want))
+        simplified += sum(r.shape[0] for r in rings) - sum(r.shape[0] for r in want)
+    # the finishing did something where there is a tolerance to simplify to
+    assert (simplified > 0) == (method == "interval")
+
+
 def test_cli_bench_needs_a_benchmark():
     res = CliRunner().invoke(main, ["bench"])
     assert res.exit_code == 2 and "error, table1" in res.output

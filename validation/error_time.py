@@ -15,7 +15,10 @@ sample model into layer contours with
 
 sweeping pixel size, layer height, contour tolerance and bucket size one at a
 time around a base setting. Each run's wall time covers the whole stack
-(every layer traced and contoured). Its error is measured at a few fixed
+(every layer traced and contoured). Every route does the same work after its
+rings: each layer becomes the MultiPolygon the contour outputs write
+(:func:`slicer.contours.finish_rings`), and the layers are contoured on the
+threads, one per thread, as the guaranteed contours' planes are. Its error is measured at a few fixed
 heights against a fine reference: our own contours of a single layer at
 ``REF_PIXELS`` pixels and a 0.01 um tolerance (checked against the meshed
 manifold3d reference by ``skelslice validate``):
@@ -41,10 +44,11 @@ from pathlib import Path
 import numpy as np
 
 from sample_lattices import load_sample
-from slicer._kernels.launch import numba_threads
-from slicer.contours import each_plane, grid_box, layer_mask, mask_rings
+from slicer._kernels.launch import numba_threads, serial
+from slicer.contours import each_plane, finish_rings, grid_box, layer_mask, mask_rings
 from slicer.field import evaluate
 from slicer.grid import make_grid
+from slicer.inorder import map_in_order
 from slicer.slicing import slice_skeleton, trace
 
 from . import machine
@@ -120,6 +124,14 @@ class Reference:
 def run_config(skel, cfg: dict, keep: set[int]) -> tuple[float, dict, dict]:
     """Slice the whole stack into contours with one configuration.
 
+    Every route ends as the contour outputs do: each layer's MultiPolygon
+    (:func:`slicer.contours.finish_rings`; vertices a chord skips within
+    ``tol / 4`` dropped where there is a tolerance), and the layers' contours
+    are computed on the Numba threads at once, one layer per thread
+    (:func:`slicer.inorder.map_in_order`, each layer's kernels serial), as
+    :func:`slicer.contours.each_plane` computes the guaranteed contours'
+    planes. The tracing itself runs on all the threads.
+
     Returns
     -------
     seconds : float
@@ -133,34 +145,54 @@ def run_config(skel, cfg: dict, keep: set[int]) -> tuple[float, dict, dict]:
     px = (x1 - x0) / cfg["pixels"]
     h = (z1 - z0) / cfg["layers"]
     grid = make_grid(skel.support_bounds(), px, layer_height=h, bounds=(x0, y0, z0, x1, y1, z1))
+    box = grid_box(grid)
+    tol = cfg["tol"]
     out = {}
     st = {}
+    with numba_threads(None) as workers:
+        pass
     t0 = time.perf_counter()
     if cfg["method"] == "guaranteed":
-        box = grid_box(grid)
-        # layer planes on the Numba threads at once, as the contour outputs compute them
-        for k, (z, mp) in enumerate(each_plane(skel, grid.centres_z(), cfg["tol"], box, st)):
-            if k in keep:
-                out[k] = polygon_rings(mp)
+        layers = each_plane(skel, grid.centres_z(), tol, box, st)
     elif cfg["method"] == "dense":
         X, Y = np.meshgrid(grid.centres_x(), grid.centres_y())
         xy = np.column_stack([X.ravel(), Y.ravel()])
-        for k, z in enumerate(grid.centres_z()):
-            V = evaluate(skel, np.column_stack([xy, np.full(xy.shape[0], z)]))[0].reshape(grid.height, grid.width)
-            rings = mask_rings(skel, V >= 1.0, grid.origin[:2], grid.pixel_size, z, refine=False, values=V)
-            if k in keep:
-                out[k] = rings
+
+        def dense_layer(z):
+            with serial():
+                V = evaluate(skel, np.column_stack([xy, np.full(xy.shape[0], z)]))[0].reshape(grid.height, grid.width)
+                rings = mask_rings(skel, V >= 1.0, grid.origin[:2], grid.pixel_size, z, refine=False, values=V)
+                return finish_rings(rings, None, box), {}
+
+        layers = _merged(map_in_order(dense_layer, grid.centres_z(), workers, name="error-time"), st)
         st["evaluations"] = grid.n_voxels
     else:
         res = trace(skel, grid, method=cfg["method"], bucket=cfg["bucket"])
         st["evaluations"] = res.stats["evaluations"]
-        for k, img in enumerate(res.iter_layers(1)):
-            z = grid.origin[2] + k * h
-            rings = mask_rings(skel, img.astype(bool), grid.origin[:2], grid.pixel_size, z, cfg["tol"], stats=st)
-            if k in keep:
-                out[k] = rings
+
+        def raster_layer(item):
+            z, img = item
+            ls: dict = {}
+            with serial():
+                rings = mask_rings(skel, img.astype(bool), grid.origin[:2], grid.pixel_size, z, tol, stats=ls)
+                return finish_rings(rings, tol, box), ls
+
+        items = zip(grid.centres_z(), res.iter_layers(1))
+        layers = _merged(map_in_order(raster_layer, items, workers, name="error-time"), st)
+    for k, (_, mp) in enumerate(layers):
+        if k in keep:
+            out[k] = polygon_rings(mp)
     seconds = time.perf_counter() - t0
     return seconds, out, {"grid": grid.to_dict(), **st}
+
+
+def _merged(results, stats: dict):
+    """``(item, mp)`` of each ``(item, (mp, counts))`` of ``results``, in order,
+    the counts added to ``stats``."""
+    for item, (mp, counts) in results:
+        for key, v in counts.items():
+            stats[key] = stats.get(key, 0) + v
+        yield item, mp
 
 
 def measure(skel, cfg: dict, ref: Reference, repeat: int = 1) -> dict:

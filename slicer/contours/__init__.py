@@ -31,13 +31,13 @@ Examples
 from __future__ import annotations
 
 from .cells import check_resolvable, guaranteed_rings
-from .layers import (each_plane, grid_box, iter_contours, iter_part_contours, layer_contours, part_layer_contours, plane_contours,
+from .layers import (each_plane, finish_rings, grid_box, iter_contours, iter_part_contours, layer_contours, part_layer_contours, plane_contours,
                      write_contours)
 from .marching import layer_mask, mask_rings
 from .rings import rings_to_multipolygon, signed_areas
 from .roots import plane_distance, project_to_contour, solve_crossings
 from .simplify import refine_rings
 
-__all__ = ["plane_contours", "each_plane", "guaranteed_rings", "check_resolvable", "grid_box", "layer_contours", "iter_contours", "iter_part_contours", "part_layer_contours", "layer_mask", "mask_rings",
+__all__ = ["plane_contours", "finish_rings", "each_plane", "guaranteed_rings", "check_resolvable", "grid_box", "layer_contours", "iter_contours", "iter_part_contours", "part_layer_contours", "layer_mask", "mask_rings",
            "refine_rings", "rings_to_multipolygon", "signed_areas", "solve_crossings", "plane_distance",
            "project_to_contour", "write_contours"]

@@ -91,12 +91,33 @@ def plane_contours(skel: Skeleton, z: float, tol: float = 1e-3, box=None, stats:
     rings = guaranteed_rings(skel, z, tol, st, certified=cert)
     if refine and rings:
         rings = _keep_simple(refine_rings(skel, rings, float(z), tol, st, certified=cert), rings, st)
-    mp = rings_to_multipolygon(rings)
-    if refine and not mp.is_empty:
-        mp = simplify(mp, SIMPLIFY_FRACTION * tol)
     if stats is not None:
         for key, v in st.items():
             stats[key] = stats.get(key, 0) + v
+    return finish_rings(rings, tol if refine else None, box)
+
+
+def finish_rings(rings: list[np.ndarray], tol: float | None = None, box=None):
+    """A layer's MultiPolygon from its contour rings, as the contour outputs write it.
+
+    Parameters
+    ----------
+    rings : list of (n_q, 2) float64, mm
+        Simple, disjoint rings: outer ones counter-clockwise, holes clockwise.
+    tol : float, optional, mm
+        The rings' chord tolerance: vertices a chord can skip within
+        ``SIMPLIFY_FRACTION * tol`` are dropped (:func:`slicer.contours.simplify.simplify`).
+        None: all vertices kept.
+    box : (4,) float, optional, mm
+        ``(xmin, ymin, xmax, ymax)``: the section is clipped to it.
+
+    Returns
+    -------
+    shapely.MultiPolygon
+    """
+    mp = rings_to_multipolygon(rings)
+    if tol is not None and not mp.is_empty:
+        mp = simplify(mp, SIMPLIFY_FRACTION * tol)
     if box is not None and not mp.is_empty:
         xa, ya, xb, yb = mp.bounds
         if xa < box[0] or ya < box[1] or xb > box[2] or yb > box[3]:
@@ -351,4 +372,4 @@ def write_contours(skel: Skeleton, result: SliceResult, path, tol: float = 1e-3,
     return {"layers": n, "vertices": nv, "seconds": time.perf_counter() - t0, "path": str(path)}
 
 
-__all__ = ["plane_contours", "each_plane", "grid_box", "layer_contours", "iter_contours", "iter_part_contours", "part_layer_contours", "write_contours"]
+__all__ = ["plane_contours", "finish_rings", "each_plane", "grid_box", "layer_contours", "iter_contours", "iter_part_contours", "part_layer_contours", "write_contours"]
