@@ -8,11 +8,11 @@ Usage::
 Jobs (the grids of ``benchmarks/speed.py``):
 
 ``jelly``, ``micro``
-    :func:`slicer.slicing.trace` of the jellyfish and the microstructure over a
+    :func:`slicer.tracer.slicing.trace` of the jellyfish and the microstructure over a
     square box around their support, 512 x 512 px, 1024 layers.
 ``octet``
     The octet lattice of the speed benchmark (5 x 5 x 5 cells of 2 mm, radius
-    0.12 -> 0.3 mm along z, :func:`slicer.lattice.generate_lattice`) at
+    0.12 -> 0.3 mm along z, :func:`slicer.scene.lattice.generate_lattice`) at
     513 x 513 px x 1008 layers.
 
 Every repeat traces each job once per bucket edge, the edges in turn, so the
@@ -35,9 +35,9 @@ sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
 from sample_lattices import load_sample  # noqa: E402
-from slicer.grid import make_grid  # noqa: E402
-from slicer.lattice import generate_lattice  # noqa: E402
-from slicer.slicing import trace  # noqa: E402
+from slicer.tracer.grid import make_grid  # noqa: E402
+from slicer.scene.lattice import generate_lattice  # noqa: E402
+from slicer.tracer.slicing import trace  # noqa: E402
 from speed import _square_bounds, octet_box  # noqa: E402
 from validation import machine  # noqa: E402
 

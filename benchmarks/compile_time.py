@@ -13,7 +13,7 @@ Jobs:
     chord refinement): what the first contour output (``.cli``, ``.3mf``,
     ``--contours``, ``--aa exact``) of a fresh install waits for.
 ``trace``
-    The first ``slicer.slicing.slice_skeleton`` of the jellyfish sample at
+    The first ``slicer.tracer.slicing.slice_skeleton`` of the jellyfish sample at
     0.05 mm (the README's quick start).
 
 Each run is a fresh subprocess with ``PYTHONPATH`` set to the tree under test
@@ -57,7 +57,7 @@ def _job(name: str):
         from slicer.contours import plane_contours
         skel = load_sample("octet_2x2x2")
         return lambda: plane_contours(skel, 5.0, 1e-3)
-    from slicer.slicing import slice_skeleton
+    from slicer.tracer.slicing import slice_skeleton
     skel = load_sample("jellyfish")
     return lambda: slice_skeleton(skel, 0.05)
 

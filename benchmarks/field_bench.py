@@ -83,7 +83,7 @@ def candidate_pairs(points, grid):
 def supported_pairs(points, table, grid, inv_s2):
     from numba import njit
 
-    from slicer._kernels.field import support_interval
+    from slicer._kernels.field.segment import support_interval
 
     @njit
     def count(points, seg, offsets, ids, origin, cell, dims, inv_s2):
@@ -120,7 +120,7 @@ def main(argv=None) -> int:
     import numba
 
     from slicer import Skeleton
-    from slicer.field import evaluate, point_grid
+    from slicer.model.field import evaluate, point_grid
     t_import = time.perf_counter() - t_import
 
     rng = np.random.default_rng(args.seed)

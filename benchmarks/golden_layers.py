@@ -5,7 +5,7 @@ Usage (the committed file was produced by release 0.1.0)::
     PYTHONPATH=<0.1.0 checkout> python benchmarks/golden_layers.py --out tests/data/golden_layers.json
     python benchmarks/golden_layers.py --check tests/data/golden_layers.json
 
-Each entry traces one scene with the interval method (``slicer.slicing.trace``,
+Each entry traces one scene with the interval method (``slicer.tracer.slicing.trace``,
 64-pixel buckets) on a fixed grid and hashes the inside runs (pixel, k0, k1,
 as little-endian int64): equal hashes mean byte-identical binary layers. The
 samples are traced over a square box around their support at ``PIXELS`` x
@@ -24,8 +24,8 @@ import numpy as np
 
 import slicer
 from sample_lattices import SAMPLES, load_sample
-from slicer.grid import make_grid
-from slicer.slicing import trace
+from slicer.tracer.grid import make_grid
+from slicer.tracer.slicing import trace
 from validation.stiff import CASES
 
 PIXELS = 160

@@ -114,11 +114,11 @@ def _write_map(path: Path) -> int:
 
 def _child(args) -> None:
     from sample_lattices import load_sample
-    from slicer.scene_io import load_scene
+    from slicer.scene.read import load_scene
 
     skel = load_scene(args.model) if args.model.endswith(".json") else load_sample(args.model)
     if args.job == "render":
-        from slicer.rendering import render
+        from slicer.render.rendering import render
 
         def job():
             return render(skel, size=(args.pixels, args.pixels), view="iso")
@@ -126,7 +126,7 @@ def _child(args) -> None:
         size = [args.pixels, args.pixels]
     elif args.job == "contours":
         from slicer.contours import each_plane, grid_box
-        from slicer.grid import make_grid
+        from slicer.tracer.grid import make_grid
 
         lo, hi = skel.support_bounds()
         grid = make_grid(skel.support_bounds(), max(hi[0] - lo[0], hi[1] - lo[1]) / args.pixels,
@@ -144,8 +144,8 @@ def _child(args) -> None:
 
         size = [grid.width, grid.height, grid.layers]
     else:
-        from slicer.grid import make_grid
-        from slicer.slicing import trace
+        from slicer.tracer.grid import make_grid
+        from slicer.tracer.slicing import trace
 
         lo, hi = skel.support_bounds()
         grid = make_grid(skel.support_bounds(), max(hi[0] - lo[0], hi[1] - lo[1]) / args.pixels,

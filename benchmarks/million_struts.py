@@ -7,7 +7,7 @@ Usage::
         [--slab N] [--prefetch | --no-prefetch] [--out DIR] [--json result.json] [--keep]
 
 A body-centred-cubic lattice (8 struts per cell, radius 6 % of the cell) is
-generated with :func:`slicer.lattice.generate_lattice`, with cells laid out
+generated with :func:`slicer.scene.lattice.generate_lattice`, with cells laid out
 in proportion to the plate (width x height px) and the layer count, so that
 the plate is filled; the plate is sliced with explicit bounds (no trim) at
 ``width x height`` pixels and ``layers`` layers, within ``--max-memory``,
@@ -83,10 +83,10 @@ def main(argv=None) -> dict:
     ap.add_argument("--json", default=None, help="also write the result here")
     args = ap.parse_args(argv)
 
-    from slicer.executors import open_executor
-    from slicer.job import run_slice
-    from slicer.lattice import generate_lattice
-    from slicer.tiles import parse_size
+    from slicer.scale.executors import open_executor
+    from slicer.job.run import run_slice
+    from slicer.scene.lattice import generate_lattice
+    from slicer.scale.tiles import parse_size
 
     nx, ny, nz = cells_for(args.struts, args.width, args.height, args.layers)
     # voxels: pixel = plate / width; the cell spans the plate's width in nx cells

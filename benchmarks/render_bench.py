@@ -25,7 +25,7 @@ PAPER_MS = {"jellyfish": 431.4, "microstructure": 1037.1}
 
 def run(models, size, threads, opacity, max_opacity):
     from sample_lattices import load_sample
-    from slicer.rendering import render
+    from slicer.render.rendering import render
 
     t0 = time.perf_counter()
     render(load_sample("cubic_2x2x2"), size=(8, 8))

@@ -17,12 +17,12 @@ Jobs (full size; ``--quick`` shrinks every one to a smoke test of a few seconds)
     The writing share of the ``octet`` job (1008 PNG layers of 513 x 513), as
     the ``slice`` command reports it.
 ``micro``, ``jelly``, ``jelly2x``
-    Trace only (``slicer.slicing.trace``): the sample microstructure at
+    Trace only (``slicer.tracer.slicing.trace``): the sample microstructure at
     512 x 512 x 1024, the jellyfish at 512 x 512 x 1024 and x 2048; the
     ``trace_seconds`` the result reports, after a trace of a coarse grid in
     the same process that loads the kernels (``setup_seconds``).
 ``render_micro``, ``render_jelly``
-    ``slicer.rendering.render`` of the samples at 700 x 700, iso view, timed
+    ``slicer.render.rendering.render`` of the samples at 700 x 700, iso view, timed
     after an 8 x 8 render in the same process that pays Numba's one-time
     set-up and the kernels' load (``setup_seconds`` in the JSON), as
     ``render_bench.py`` does.
@@ -84,8 +84,8 @@ def _square_bounds(skel, pixels: int):
 
 def _worker_trace(name: str, pixels: int, layers: int, threads: int) -> dict:
     from sample_lattices import load_sample
-    from slicer.grid import make_grid
-    from slicer.slicing import trace
+    from slicer.tracer.grid import make_grid
+    from slicer.tracer.slicing import trace
 
     skel = load_sample(SAMPLE[name])
     bounds, px = _square_bounds(skel, pixels)
@@ -100,11 +100,11 @@ def _worker_trace(name: str, pixels: int, layers: int, threads: int) -> dict:
 
 
 def _render_function():
-    """``render`` of the tree under test (``slicer.rendering``; ``slicer.render`` in 0.1.0)."""
+    """``render`` of the tree under test (``slicer.render.rendering``; ``slicer.render`` in 0.1.0)."""
     import importlib
 
     try:
-        return importlib.import_module("slicer.rendering").render
+        return importlib.import_module("slicer.render.rendering").render
     except ModuleNotFoundError:
         return importlib.import_module("slicer.render").render
 
@@ -128,8 +128,8 @@ def _worker_render(name: str, size: int, threads: int) -> dict:
 
 def _worker_warm(threads: int) -> dict:
     from sample_lattices import load_sample
-    from slicer.grid import make_grid
-    from slicer.slicing import trace
+    from slicer.tracer.grid import make_grid
+    from slicer.tracer.slicing import trace
 
     render = _render_function()
     t0 = time.perf_counter()

@@ -11,18 +11,18 @@ from pathlib import Path
 
 from slicer.errors import OutputError
 
-from .base import AtomicDir, AtomicFile, StackWriter
-from .common_layer import CliAsciiWriter, CliShortWriter, CliWriter
-from .contour_base import ContourWriter
-from .ctb import CtbV2Writer, CtbWriter
-from .goo import GooWriter
-from .nanodlp import NanoDlpWriter
-from .photon import PHOTON_WRITERS
-from .png_stack import PngStackWriter
-from .sl1 import Sl1sWriter, Sl1Writer
-from .svg import SvgWriter
-from .threemf_slices import ThreeMFSliceWriter
-from .zip_stack import ZipStackWriter
+from formats.base import AtomicDir, AtomicFile, StackWriter
+from formats.common_layer import CliAsciiWriter, CliShortWriter, CliWriter
+from formats.contour_base import ContourWriter
+from formats.ctb import CtbV2Writer, CtbWriter
+from formats.goo import GooWriter
+from formats.nanodlp import NanoDlpWriter
+from formats.photon import PHOTON_WRITERS
+from formats.png_stack import PngStackWriter
+from formats.sl1 import Sl1sWriter, Sl1Writer
+from formats.svg import SvgWriter
+from formats.threemf_slices import ThreeMFSliceWriter
+from formats.zip_stack import ZipStackWriter
 
 #: format name -> writer class
 WRITERS: dict[str, type[StackWriter]] = {

@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 
 from slicer.atomic import AtomicDir, AtomicFile, check_destination
-from slicer.checks import integer, number
+from slicer.arguments import integer, number
 from slicer.errors import FormatError, OutputError
-from slicer.inorder import map_in_order
+from slicer.scale.ordered_map import map_in_order
 
-from .estimate import LayerMeter
-from .rle import Band, occupied
-from .thumbnails import TopView
+from formats.estimate import LayerMeter
+from formats.rle import Band, occupied
+from formats.thumbnails import TopView
 
 
 class StackWriter:
@@ -29,13 +29,13 @@ class StackWriter:
     ----------
     path : path-like
         Final output location.
-    grid : slicer.grid.SliceGrid
+    grid : slicer.tracer.grid.SliceGrid
         Grid of the layers.
     meta : dict
         Extra metadata (method, scene, ...), written where the format allows.
     force : bool
         Replace an existing output.
-    settings : formats.printers.PrintSettings, optional
+    settings : formats.printer_profiles.PrintSettings, optional
         Printer, exposure and anti-aliasing settings (printer formats need a
         printer; others record them as metadata).
     """
@@ -226,7 +226,7 @@ def write_ordered(writer: StackWriter, layers, workers: int | None = None) -> in
     (``parallel_encode``) and ``workers > 1``, layers are encoded on a pool of
     ``workers`` threads (zlib and Pillow release the GIL), at most
     ``2 * workers`` in flight, while the next layers are produced
-    (:func:`slicer.inorder.map_in_order`); payloads
+    (:func:`slicer.scale.ordered_map.map_in_order`); payloads
     are stored strictly in layer order, so the output is byte-identical to
     a serial run. Memory: ``2 * workers`` layers and their payloads.
 

@@ -61,7 +61,7 @@ import shapely
 
 from slicer.errors import OptionError, OutputError, ReadError
 
-from .contour_base import ContourWriter, rings
+from formats.contour_base import ContourWriter, rings
 
 #: binary command ids (CLI v2.0)
 CMD_LAYER_LONG, CMD_LAYER_SHORT = 127, 128

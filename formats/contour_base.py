@@ -35,7 +35,7 @@ from shapely.geometry.polygon import orient
 from slicer.atomic import AtomicFile
 from slicer.errors import OutputError
 
-from .base import StackWriter
+from formats.base import StackWriter
 
 
 class ContourWriter(StackWriter):
@@ -45,13 +45,13 @@ class ContourWriter(StackWriter):
     ----------
     path : path-like
         Final output file.
-    grid : slicer.grid.SliceGrid
+    grid : slicer.tracer.grid.SliceGrid
         Grid of the layers: layer count, layer height, the box of the job.
     meta : dict, optional
         Provenance (generator, method, scene), written where the format allows.
     force : bool
         Replace an existing output.
-    settings : formats.printers.PrintSettings, optional
+    settings : formats.printer_profiles.PrintSettings, optional
         Accepted as for every writer; contours are in scene mm, or in plate
         mm when a printer job places them (``grid`` is then the plate's, see
         :func:`slicer.contours.iter_contours`).
@@ -65,7 +65,7 @@ class ContourWriter(StackWriter):
     ``self.fh``.
     """
 
-    #: writers of this kind take polygons, not images (see slicer.job)
+    #: writers of this kind take polygons, not images (see slicer.job.run)
     kind = "contours"
     #: format name in the registry
     name = ""

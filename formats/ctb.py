@@ -57,9 +57,9 @@ import struct
 
 import numpy as np
 
-from .base import BinaryStackWriter, build_time
-from .printers import plate_printer
-from .rle import GreyLevels, runs, split_runs
+from formats.base import BinaryStackWriter, build_time
+from formats.printer_profiles import plate_printer
+from formats.rle import GreyLevels, runs, split_runs
 
 MAGIC = 0x12FD0086
 HEADER_SIZE = 112

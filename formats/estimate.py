@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rle import occupied
+from formats.rle import occupied
 
 #: percentage of the display above which a layer counts as large (PrusaSlicer ``area_fill``)
 AREA_FILL = 50.0
@@ -133,7 +133,7 @@ def exposure_times(settings, layers: int, fade: bool = False) -> np.ndarray:
 
     Parameters
     ----------
-    settings : formats.printers.PrintSettings
+    settings : formats.printer_profiles.PrintSettings
     layers : int
     fade : bool
         Prusa faded layers: the first ``min(bottom_layers, layers)`` exposures
@@ -168,7 +168,7 @@ def print_estimate(settings, layers: int, grey_sum: int | None = None, slow_laye
 
     Parameters
     ----------
-    settings : formats.printers.PrintSettings or None
+    settings : formats.printer_profiles.PrintSettings or None
         Exposures, layer height and printer (None: no estimate possible,
         returns zero times).
     layers : int

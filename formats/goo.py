@@ -31,10 +31,10 @@ import numpy as np
 
 from slicer.errors import OutputError
 
-from .base import BinaryStackWriter, build_time, fixed_string
-from .printers import plate_printer
-from .rle import runs
-from .thumbnails import rgb565
+from formats.base import BinaryStackWriter, build_time, fixed_string
+from formats.printer_profiles import plate_printer
+from formats.rle import runs
+from formats.thumbnails import rgb565
 
 HEADER_SIZE = 195_477
 MAGIC = bytes([0x07, 0x00, 0x00, 0x00, 0x44, 0x4C, 0x50, 0x00])

@@ -47,15 +47,15 @@ import json
 
 import numpy as np
 
-from slicer._kernels.islands import island_sizes as _island_sizes
+from slicer._kernels.formats.islands import island_sizes as _island_sizes
 from slicer.errors import OutputError
 
-from .base import build_time, png_bytes_sparse
-from .estimate import LayerMeter
-from .printers import PrintSettings
-from .rle import occupied
-from .thumbnails import TopView, png_rgba
-from .zip_stack import ZipArchiveWriter
+from formats.base import build_time, png_bytes_sparse
+from formats.estimate import LayerMeter
+from formats.printer_profiles import PrintSettings
+from formats.rle import occupied
+from formats.thumbnails import TopView, png_rgba
+from formats.zip_stack import ZipArchiveWriter
 
 #: NanoDLP meta.json format version
 FORMAT_VERSION = 2

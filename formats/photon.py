@@ -63,10 +63,10 @@ import numpy as np
 
 from slicer.errors import FormatError
 
-from .base import BinaryStackWriter, fixed_string
-from .printers import plate_printer
-from .rle import Band, GreyLevels, runs, split_runs
-from .thumbnails import rgb565
+from formats.base import BinaryStackWriter, fixed_string
+from formats.printer_profiles import plate_printer
+from formats.rle import Band, GreyLevels, runs, split_runs
+from formats.thumbnails import rgb565
 
 PREVIEW = (224, 168)
 PREVIEW2 = (320, 190)

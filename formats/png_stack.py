@@ -27,7 +27,7 @@ import numpy as np
 from slicer.atomic import AtomicDir
 from slicer.errors import OutputError
 
-from .base import StackWriter, png_bytes
+from formats.base import StackWriter, png_bytes
 
 LAYER_NAME = "layer_{:05d}.png"
 

@@ -10,7 +10,7 @@ one 8-bit image at a time, bottom first.
 * SL1/SL1S (``config.ini``, ``prusaslicer.ini``), GOO (the header) and
   NanoDLP with a printer profile store the printer's native images; they
   are turned back into plate images (columns +X, rows -Y of the plate,
-  :meth:`formats.printers.Printer.from_native`) with the built-in profile
+  :meth:`formats.printer_profiles.Printer.from_native`) with the built-in profile
   the file names, or one built from the file's own display settings.
 * NanoDLP without a profile stores the grid's image padded on the right;
   its coordinates are the display's, about its centre (``frame ==
@@ -34,13 +34,13 @@ from typing import Callable, Iterator
 import numpy as np
 from PIL import Image
 
-from slicer._kernels.rle import OK, decode_goo
+from slicer._kernels.formats.goo_rle import OK, decode_goo
 from slicer.errors import ReadError
-from slicer.grid import SliceGrid
+from slicer.tracer.grid import SliceGrid
 
-from .goo import HEADER_SIZE, MAGIC
-from .nanodlp import unpack_rgb
-from .printers import PRINTERS, Printer, PrintSettings
+from formats.goo import HEADER_SIZE, MAGIC
+from formats.nanodlp import unpack_rgb
+from formats.printer_profiles import PRINTERS, Printer, PrintSettings
 
 #: suffixes of image outputs this module reads
 IMAGE_SUFFIXES = (".zip", ".sl1", ".sl1s", ".goo", ".nanodlp")
@@ -59,7 +59,7 @@ class ReadStack:
     path : Path
     format : str
         ``png``, ``zip``, ``sl1``, ``sl1s``, ``goo`` or ``nanodlp``.
-    grid : slicer.grid.SliceGrid
+    grid : slicer.tracer.grid.SliceGrid
         Grid of the (plate) images.
     frame : {"scene", "plate", "display"}
     printer : Printer or None

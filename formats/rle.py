@@ -21,7 +21,7 @@ def occupied(image: np.ndarray) -> tuple[int, int, int, int] | None:
     One pass over the image's rows (fast on a row-major image), then one
     over the columns of the rows found. An image with a ``window`` attribute
     (``(r0, r1, c0, c1)``, outside which it is zero: a
-    :class:`slicer.antialias.PlateImage`) is scanned inside the window only.
+    :class:`slicer.raster.antialias.PlateImage`) is scanned inside the window only.
 
     Examples
     --------

@@ -29,12 +29,12 @@ import numpy as np
 
 from slicer.errors import FormatError
 
-from .base import build_time, png_bytes
-from .estimate import AREA_FILL, LayerMeter
-from .printers import plate_printer
-from .rle import occupied
-from .thumbnails import TopView, png_rgba
-from .zip_stack import ZipArchiveWriter
+from formats.base import build_time, png_bytes
+from formats.estimate import AREA_FILL, LayerMeter
+from formats.printer_profiles import plate_printer
+from formats.rle import occupied
+from formats.thumbnails import TopView, png_rgba
+from formats.zip_stack import ZipArchiveWriter
 
 #: firmware limits (slafw configs/project.py)
 EXPOSURE_RANGE = (0.1, 60.0)

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from xml.sax.saxutils import quoteattr
 
-from .contour_base import ContourWriter, rings
+from formats.contour_base import ContourWriter, rings
 
 SVG_NS = "http://www.w3.org/2000/svg"
 INKSCAPE_NS = "http://www.inkscape.org/namespaces/inkscape"

@@ -42,7 +42,7 @@ from __future__ import annotations
 import zipfile
 from xml.sax.saxutils import quoteattr
 
-from .contour_base import ContourWriter, rings
+from formats.contour_base import ContourWriter, rings
 
 SLICE_NS = "http://schemas.microsoft.com/3dmanufacturing/slice/2015/07"
 CORE_NS = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .rle import occupied
+from formats.rle import occupied
 
 #: colour of the model in previews (Prusa orange), RGB
 MODEL_RGB = np.array([250.0, 120.0, 30.0])

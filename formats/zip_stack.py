@@ -20,9 +20,9 @@ import numpy as np
 from slicer.atomic import AtomicFile
 from slicer.errors import OutputError
 
-from .base import StackWriter, png_bytes, zip_entry
-from .estimate import LayerMeter
-from .png_stack import LAYER_NAME, slices_doc
+from formats.base import StackWriter, png_bytes, zip_entry
+from formats.estimate import LayerMeter
+from formats.png_stack import LAYER_NAME, slices_doc
 
 
 class ZipArchiveWriter(StackWriter):

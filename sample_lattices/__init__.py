@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Callable
 
 from slicer.errors import SceneError
-from slicer.scene_io import load_scene, save_scene
-from slicer.skeleton import Skeleton
+from slicer.scene.read import load_scene, save_scene
+from slicer.model.skeleton import Skeleton
 
 from . import jellyfish, microstructure, small
 

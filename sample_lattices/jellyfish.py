@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from slicer.skeleton import Skeleton
+from slicer.model.skeleton import Skeleton
 
 N_MERIDIANS = 12
 N_BANDS = 3            # segments per meridian (and number of rings)

@@ -8,8 +8,8 @@ tapered).
 """
 from __future__ import annotations
 
-from slicer.skeleton import Skeleton
-from slicer.lattice import generate_lattice
+from slicer.model.skeleton import Skeleton
+from slicer.scene.lattice import generate_lattice
 
 CELLS = (6, 6, 5)
 CELL_SIZE = 5.0                 # mm

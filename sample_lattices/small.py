@@ -1,8 +1,8 @@
 """Small lattices for quick tests and examples (built with generate_lattice)."""
 from __future__ import annotations
 
-from slicer.skeleton import Skeleton
-from slicer.lattice import generate_lattice
+from slicer.model.skeleton import Skeleton
+from slicer.scene.lattice import generate_lattice
 
 
 def cubic_2x2x2() -> Skeleton:

@@ -35,19 +35,22 @@ from __future__ import annotations
 
 import importlib
 
-from ._version import __version__
-from .errors import (FormatError, GridError, MissingDependencyError, OptionError, OutputError, SceneError,
+from slicer import _aliases
+
+_aliases.install()
+from slicer._version import __version__
+from slicer.errors import (FormatError, GridError, MissingDependencyError, OptionError, OutputError, SceneError,
                      SkelsliceError, UsageError)
-from .kernel import kernel_normalisation
-from .lattice import generate_lattice
-from .rendering import RenderResult, render
-from .scene_io import load_scene, save_scene
-from .skeleton import Skeleton
-from .slicing import SliceResult, slice_skeleton
+from slicer.model.siis_kernel import kernel_normalisation
+from slicer.scene.lattice import generate_lattice
+from slicer.render.rendering import RenderResult, render
+from slicer.scene.read import load_scene, save_scene
+from slicer.model.skeleton import Skeleton
+from slicer.tracer.slicing import SliceResult, slice_skeleton
 
 #: name -> module of the names loaded on first use (see the module docstring)
-_LAZY = {"run_slice": "slicer.job", "SliceJob": "slicer.jobspec", "Part": "slicer.parts", "load_part": "slicer.parts",
-         "slice_part": "slicer.part_slicing"}
+_LAZY = {"run_slice": "slicer.job.run", "SliceJob": "slicer.job.spec", "Part": "slicer.parts.part", "load_part": "slicer.parts.part",
+         "slice_part": "slicer.parts.slicing"}
 
 
 def __getattr__(name: str):

@@ -15,38 +15,110 @@ NUMBA_CACHE_DIR
 Cache invalidation
 ------------------
 Numba keys a cached function on its own file only: editing a callee in another
-file (say ``field.py`` under ``trace.py``) would silently reuse stale machine
-code. Unless ``NUMBA_CACHE_DIR`` is set, the cache therefore lives in a folder
-named after a hash of every kernel source file, so any change to any kernel
-starts a fresh cache.
+file (say ``field/segment.py`` under ``trace/summed.py``) would silently reuse
+stale machine code. The kernels are therefore cached per *group* (a subfolder of
+:mod:`slicer._kernels`): a group's functions live in a folder named after a hash
+of this file, the group's sources and the sources of every group it imports,
+directly or not (:func:`group_keys`). Editing the renderer starts a fresh cache
+for the renderer alone; editing the field starts one for every group built on it.
+The folders sit under ``NUMBA_CACHE_DIR`` when it is set, else under
+``~/.cache/skelslice/numba`` (``$XDG_CACHE_HOME/skelslice/numba``).
 """
 from __future__ import annotations
 
 import hashlib
 import os
+import re
 from pathlib import Path
 
 from numba import config, njit
+from numba.core import caching
 
 CACHE: bool = os.environ.get("SKELSLICE_NUMBA_CACHE", "1") not in ("0", "false", "no")
 
-
-def _kernel_source_hash() -> str:
-    here = Path(__file__).parent
-    h = hashlib.sha256()
-    for f in [here / "_jit.py", *sorted((here / "_kernels").glob("*.py"))]:
-        h.update(f.name.encode())
-        h.update(f.read_bytes())
-    return h.hexdigest()[:16]
+_KERNELS = Path(__file__).parent / "_kernels"
+_GROUP_IMPORT = re.compile(r"\bslicer\._kernels\.(\w+)")
 
 
-def _cache_root() -> Path:
+def _group_sources(kernels: Path) -> dict[str, list[Path]]:
+    return {d.name: sorted(d.rglob("*.py")) for d in sorted(kernels.iterdir())
+            if d.is_dir() and (d / "__init__.py").exists()}
+
+
+def group_keys(kernels: Path = _KERNELS, jit_file: Path = Path(__file__)) -> dict[str, str]:
+    """The cache key of every kernel group.
+
+    Parameters
+    ----------
+    kernels : Path
+        The kernel package (``slicer/_kernels``); each subfolder with an ``__init__.py`` is a group.
+    jit_file : Path
+        The decorator presets (this file), part of every key.
+
+    Returns
+    -------
+    dict
+        Group name -> 16 hex digits: a hash of ``jit_file``, the group's sources and the sources of
+        every group it imports (``slicer._kernels.<group>``), directly or through other groups.
+    """
+    sources = _group_sources(kernels)
+    texts = {g: [f.read_bytes() for f in files] for g, files in sources.items()}
+    deps = {g: {m for t in texts[g] for m in _GROUP_IMPORT.findall(t.decode()) if m in sources and m != g}
+            for g in sources}
+    keys = {}
+    for g in sources:
+        closure, todo = {g}, [g]
+        while todo:
+            for d in deps[todo.pop()]:
+                if d not in closure:
+                    closure.add(d)
+                    todo.append(d)
+        h = hashlib.sha256(jit_file.read_bytes())
+        for d in sorted(closure):
+            for f, t in zip(sources[d], texts[d]):
+                h.update(f"{d}/{f.relative_to(kernels / d).as_posix()}".encode())
+                h.update(t)
+        keys[g] = h.hexdigest()[:16]
+    return keys
+
+
+def cache_root() -> Path:
+    """Where the compiled kernels are cached: ``NUMBA_CACHE_DIR`` or ``~/.cache/skelslice/numba``."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return Path(os.environ["NUMBA_CACHE_DIR"])
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "skelslice" / "numba"
 
 
-if CACHE and not os.environ.get("NUMBA_CACHE_DIR"):
-    config.CACHE_DIR = str(_cache_root() / _kernel_source_hash())
+_KEYS: dict[str, str] = group_keys() if CACHE else {}
+
+# numba >= 0.61 names these without the leading underscore
+_CacheImpl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")
+_UserLocator = getattr(caching, "UserProvidedCacheLocator", None) or getattr(caching, "_UserProvidedCacheLocator")
+
+
+class GroupCacheLocator(_UserLocator):
+    """Numba cache locator of the kernels: one folder per kernel group and group key."""
+
+    def __init__(self, py_func, py_file):
+        self._py_file = py_file
+        self._lineno = py_func.__code__.co_firstlineno
+        group = Path(py_file).resolve().relative_to(_KERNELS.resolve()).parts[0]
+        self._cache_path = str(cache_root() / f"{group}-{_KEYS[group]}" / self.get_suitable_cache_subpath(py_file))
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        try:
+            group = Path(py_file).resolve().relative_to(_KERNELS.resolve()).parts[0]
+        except ValueError:
+            return None
+        if group not in _KEYS:
+            return None
+        return super(_UserLocator, cls).from_function(py_func, py_file)
+
+
+if CACHE and GroupCacheLocator not in _CacheImpl._locator_classes:
+    _CacheImpl._locator_classes.insert(0, GroupCacheLocator)
 
 # Threading layer: GNU OpenMP first. Kernels are launched from several Python
 # threads at once (the `threads` executor); with the TBB layer such a process
@@ -75,4 +147,4 @@ unrefcounted_kernel = njit(nogil=True, _nrt=False, **_COMMON)
 #: parallel kernel (``prange`` over points, tiles or buckets)
 parallel_kernel = njit(parallel=True, nogil=True, **_COMMON)
 
-__all__ = ["CACHE", "kernel", "inline_kernel", "unrefcounted_kernel", "parallel_kernel"]
+__all__ = ["CACHE", "group_keys", "cache_root", "GroupCacheLocator", "kernel", "inline_kernel", "unrefcounted_kernel", "parallel_kernel"]

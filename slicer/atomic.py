@@ -25,7 +25,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from .errors import OutputError
+from slicer.errors import OutputError
 
 
 def _parent(path: Path) -> Path:

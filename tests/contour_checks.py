@@ -5,7 +5,7 @@ import numpy as np
 import shapely
 from shapely import MultiPolygon, Polygon, box
 
-from slicer.grid import SliceGrid
+from slicer.tracer.grid import SliceGrid
 
 #: the sample job: x in [-1, 11], y in [-1, 7], 5 layers of 0.2 mm from z = 0
 GRID = SliceGrid(origin=(-0.95, 6.95, 0.1), pixel_size=(0.1, 0.1), layer_height=0.2,

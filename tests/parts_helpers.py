@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from slicer.meshes import make_mesh
+from slicer.parts.meshes import make_mesh
 
 
 def winding_number(tri: np.ndarray, points: np.ndarray, chunk: int = 4096) -> np.ndarray:

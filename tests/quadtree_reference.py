@@ -1,8 +1,8 @@
 """The guaranteed contours' quadtree, leaf walks and crossing pairs as they were
 written before they became compiled kernels: whole-array numpy steps (per
 level, over the cell-state passes). Naive references for
-:func:`slicer._kernels.quadtree.quadtree`, :func:`slicer._kernels.contours.leaf_walks`
-and :func:`slicer._kernels.contours.pair_crossings` (bit for bit;
+:func:`slicer._kernels.contours.quadtree.quadtree`, :func:`slicer._kernels.contours.chain.leaf_walks`
+and :func:`slicer._kernels.contours.chain.pair_crossings` (bit for bit;
 tests/test_quadtree.py)."""
 from __future__ import annotations
 
@@ -10,15 +10,15 @@ import math
 
 import numpy as np
 
-from slicer._kernels.cellbounds import PIECES, SLACK, disc_bounds, disc_bounds_binned
-from slicer._kernels.cellstate import (IN, ONEDIR, OUT, SMALL, THIN, clear_cells, corner_candidates, crest_candidates,
+from slicer._kernels.contours.cellbounds import PIECES, SLACK, disc_bounds, disc_bounds_binned
+from slicer._kernels.contours.cellstate import (IN, ONEDIR, OUT, SMALL, THIN, clear_cells, corner_candidates, crest_candidates,
                                        judge_cells, settle_from_parent)
-from slicer._kernels.ridgebounds import ridge_bounds, ridge_bounds_binned
+from slicer._kernels.contours.ridgebounds import ridge_bounds, ridge_bounds_binned
 from slicer.contours.cells import COARSE_PIECES, _bin_segments, inherit_side
 from slicer.contours.roots import FIELD_SLACK, _field
-from slicer.field import point_grid
-from slicer.ordering import stable_argsort
-from slicer.skeleton import Skeleton
+from slicer.model.field import point_grid
+from slicer.raster.ordering import stable_argsort
+from slicer.model.skeleton import Skeleton
 
 
 class _Bounds:
@@ -43,7 +43,7 @@ class _Bounds:
         return None
 
     def disc_bounds(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, pieces: int = PIECES):
-        """G, H, U of :func:`slicer._kernels.cellbounds.disc_bounds` over the discs,
+        """G, H, U of :func:`slicer._kernels.contours.cellbounds.disc_bounds` over the discs,
         from the segments binned near each centre when the discs fit the bins."""
         sk = self.skel
         binned = self._binned(cx, cy, r)
@@ -53,7 +53,7 @@ class _Bounds:
         return disc_bounds(self.table, self.ids, cx, cy, self.z, r, sk.degree, sk.sigma, sk.normalisation, pieces)
 
     def ridge_bounds(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
-        """Frame and signed bounds of :func:`slicer._kernels.ridgebounds.ridge_bounds`
+        """Frame and signed bounds of :func:`slicer._kernels.contours.ridgebounds.ridge_bounds`
         over the discs, binned like :meth:`disc_bounds`."""
         sk = self.skel
         binned = self._binned(cx, cy, r)
@@ -275,7 +275,7 @@ def _corner_test(bounds: _Bounds, ix: np.ndarray, iy: np.ndarray, x0: float, y0:
                  state: np.ndarray, taylor):
     """``state`` with the unresolved cells that have one partial derivative
     proven nonzero (and whose centre's linear model forecasts a pass) made ONEDIR where the field at their four corners proves
-    no cap hides along their edges (:func:`slicer._kernels.cellstate.clear_cells`),
+    no cap hides along their edges (:func:`slicer._kernels.contours.cellstate.clear_cells`),
     and the corner values, (4, c) (NaN where not tested)."""
     f, g, G, H = taylor[:4]
     corners = np.full((4, state.size), np.nan)

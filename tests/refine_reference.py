@@ -1,9 +1,9 @@
 """The contours' root solver, projections and chord refinement as they were
 written before they became compiled kernels: whole-array numpy steps, every
 unfinished segment or chord of a round at once. Naive references for
-:func:`slicer._kernels.crossings.solve_segments`,
-:func:`slicer._kernels.crossings.project_points` and
-:func:`slicer._kernels.refine.refine_chords` (bit for bit, evaluation counts
+:func:`slicer._kernels.contours.crossings.solve_segments`,
+:func:`slicer._kernels.contours.crossings.project_points` and
+:func:`slicer._kernels.contours.refine.refine_chords` (bit for bit, evaluation counts
 included; tests/test_refine.py). The bracket steps are plain Python loops."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 
 from slicer.contours.roots import FIELD_SLACK, MAX_ITER, _field
 from slicer.contours.simplify import CHORD_FRACTION
-from slicer.skeleton import Skeleton
+from slicer.model.skeleton import Skeleton
 
 
 def np_minimum(a, b):

@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 import shapely
 
-from formats.printers import PrintSettings
+from formats.printer_profiles import PrintSettings
 from slicer import Skeleton
-from slicer.antialias import (Z_PLANES, box_filter, check_aa, iter_exact_coverage, output_grid, output_layers,
+from slicer.raster.antialias import (Z_PLANES, box_filter, check_aa, iter_exact_coverage, output_grid, output_layers,
                               polygon_coverage)
 from slicer.contours import grid_box, plane_contours
 from slicer.errors import OptionError
-from slicer.grid import SliceGrid
-from slicer.slicing import slice_skeleton
+from slicer.tracer.grid import SliceGrid
+from slicer.tracer.slicing import slice_skeleton
 
 TOL = 1e-4
 
@@ -140,7 +140,7 @@ def test_cli_aa_exact_writes_the_disc_area(tmp_path):
     from click.testing import CliRunner
     from PIL import Image
 
-    from slicer.cli import main
+    from slicer.cli.app import main
 
     scene = tmp_path / "strut.json"
     scene.write_text(json.dumps({"skelslice": 1, "units": "mm", "nodes": [[0, 0, 0], [0, 0, 6]],

@@ -15,13 +15,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from formats.printers import PrintSettings
+from formats.printer_profiles import PrintSettings
 from slicer import Skeleton
-from slicer.antialias import box_filter, grey_from_coverage, output_grid
-from slicer.antialias import output_layers as render
+from slicer.raster.antialias import box_filter, grey_from_coverage, output_grid
+from slicer.raster.antialias import output_layers as render
 from slicer.errors import GridError
-from slicer.grid import SliceGrid
-from slicer.slicing import slice_skeleton
+from slicer.tracer.grid import SliceGrid
+from slicer.tracer.slicing import slice_skeleton
 
 
 # ---------------------------------------------------------------- grey mapping
@@ -227,7 +227,7 @@ def test_aa_z_without_spans_is_a_clear_error():
 @given(st.integers(1, 30), st.integers(1, 30), st.data())
 def test_a_plate_image_is_scanned_inside_its_window_only_with_the_same_box(H, W, data):
     from formats.rle import occupied
-    from slicer.antialias import PlateImage
+    from slicer.raster.antialias import PlateImage
 
     r0 = data.draw(st.integers(0, H))
     r1 = data.draw(st.integers(r0, H))
@@ -246,7 +246,7 @@ def test_a_plate_image_is_scanned_inside_its_window_only_with_the_same_box(H, W,
 
 @pytest.mark.parametrize("aa", [1, 2])
 def test_plate_layers_know_where_the_model_is(aa):
-    from formats.printers import get_printer
+    from formats.printer_profiles import get_printer
     from formats.rle import occupied
 
     s = Skeleton([[0, 0, 0], [3, 1, 2]], [[0, 1]], [[0.4, 0.6]])
@@ -266,7 +266,7 @@ def test_plate_layers_know_where_the_model_is(aa):
 
 
 def test_plate_pool_reuses_only_plates_nobody_holds():
-    from slicer.antialias import PlatePool, paste
+    from slicer.raster.antialias import PlatePool, paste
 
     pool = PlatePool((6, 8), size=2)
     a = pool.take()
@@ -288,7 +288,7 @@ def test_plate_pool_reuses_only_plates_nobody_holds():
 def test_plate_layers_held_by_the_caller_stay_intact():
     """A caller that keeps every layer gets distinct plates; one that streams gets
     the same pixels from reused plates."""
-    from formats.printers import get_printer
+    from formats.printer_profiles import get_printer
 
     s = Skeleton([[0, 0, 0], [3, 1, 2]], [[0, 1]], [[0.4, 0.6]])
     prn = get_printer("prusa-sl1s")

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from slicer.cli import main
+from slicer.cli.app import main
 from slicer.errors import OptionError
-from slicer.field import evaluate
-from slicer.skeleton import Skeleton
-from slicer.slicing import slice_skeleton
+from slicer.model.field import evaluate
+from slicer.model.skeleton import Skeleton
+from slicer.tracer.slicing import slice_skeleton
 import validation.union_validate as uv
 from validation.bulge import bulge, node
 from validation.union_validate import validate_union

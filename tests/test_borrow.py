@@ -1,10 +1,10 @@
-"""Borrowed array views (slicer._kernels.borrow): same memory, any layout, tuples."""
+"""Borrowed array views (slicer._kernels.runtime.borrow): same memory, any layout, tuples."""
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-from slicer._kernels.borrow import borrow, keep_alive
+from slicer._kernels.runtime.borrow import borrow, keep_alive
 
 
 @njit(cache=False)

@@ -1,5 +1,5 @@
-"""Bounds of the field over discs of a layer plane (slicer._kernels.cellbounds
-and slicer._kernels.ridgebounds, docs/math.md §10).
+"""Bounds of the field over discs of a layer plane (slicer._kernels.contours.cellbounds
+and slicer._kernels.contours.ridgebounds, docs/math.md §10).
 
 Property: on random segments (tapered or not, short or long, any direction,
 alone or meeting others at a node) and random discs of a layer plane near
@@ -21,14 +21,14 @@ from hypothesis import strategies as st
 
 from sample_lattices import load_sample
 from slicer import Skeleton
-from slicer._kernels.binning import bin_boxes
-from slicer._kernels.cellbounds import MIN_PIECES, PIECES, curvature_range, disc_bounds, disc_bounds_binned, piece_count
-from slicer._kernels import cellbounds as cb
-from slicer._kernels.points import field_at_points
-from slicer._kernels.raysupport import kprime_max
-from slicer._kernels.ridgebounds import ridge_bounds, ridge_bounds_binned
+from slicer._kernels.field.binning import bin_boxes
+from slicer._kernels.contours.cellbounds import MIN_PIECES, PIECES, curvature_range, disc_bounds, disc_bounds_binned, piece_count
+from slicer._kernels.contours import cellbounds as cb
+from slicer._kernels.field.points import field_at_points
+from slicer._kernels.rays.support import kprime_max
+from slicer._kernels.contours.ridgebounds import ridge_bounds, ridge_bounds_binned
 from slicer.contours.cells import THIN, _bin_segments, _root_grid, plane_segments
-from slicer.field import evaluate, point_grid, segment_table, support_boxes
+from slicer.model.field import evaluate, point_grid, segment_table, support_boxes
 
 #: step of the central differences, mm; their error (h² times the third
 #: derivative, and rounding over h) is far below FD_MARGIN

@@ -1,6 +1,6 @@
 """The compiled cell-state passes against whole-array numpy references.
 
-``slicer._kernels.cellstate`` replaced a few dozen numpy steps each: the
+``slicer._kernels.contours.cellstate`` replaced a few dozen numpy steps each: the
 states, curvature and slope bounds must be the same floats, including where
 bounds are infinite or NaN (no support, degree 2) and gradients vanish.
 """
@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from slicer._kernels.cellstate import (HALF_SIDE, IN, ONEDIR, OUT, SIMPLE, clear_cells, corner_candidates,
+from slicer._kernels.contours.cellstate import (HALF_SIDE, IN, ONEDIR, OUT, SIMPLE, clear_cells, corner_candidates,
                                        corners_clear, crest_candidates, edge_clear, judge_cells, settle_from_parent)
 
 SLACK = 1e-9

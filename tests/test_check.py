@@ -22,11 +22,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from slicer import Skeleton
-from slicer._kernels.labels import label_layer, link_layers, region_stats
-from slicer.cli import main
-from slicer.grid import SliceGrid
+from slicer._kernels.raster.labels import label_layer, link_layers, region_stats
+from slicer.cli.app import main
+from slicer.tracer.grid import SliceGrid
 from slicer.printability import IslandFinder, TrapFinder, printed_widths
-from slicer.slicing import slice_skeleton
+from slicer.tracer.slicing import slice_skeleton
 
 
 def run(*args):

@@ -1,7 +1,7 @@
 """Bad input through the real entry points: ``skelslice info`` must exit 2 with a
 one-line message naming the file, the entry and the value, and never a traceback.
 
-Every case of ``test_scene_io.BAD_CASES`` runs through ``slicer.cli.main``
+Every case of ``test_scene_io.BAD_CASES`` runs through ``slicer.cli.app.main``
 (in-process, with click's ``CliRunner``); a few also run as subprocesses through
 ``python -m slicer`` and the installed ``skelslice`` console script.
 """
@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-import slicer.cli
+import slicer.cli.app
 
 
 def _sibling(name: str):
@@ -34,7 +34,7 @@ BAD_CASES, make = _cases.BAD_CASES, _cases.make
 
 
 def invoke(*args: str):
-    return CliRunner().invoke(slicer.cli.main, list(args))
+    return CliRunner().invoke(slicer.cli.app.main, list(args))
 
 
 def assert_clean_error(result, path, fragments=()):

@@ -1,5 +1,5 @@
 """Flags of ``slice``, ``render`` and ``validate`` through the real entry point
-(click's CliRunner on :func:`slicer.cli.main`), each test asserting the
+(click's CliRunner on :func:`slicer.cli.app.main`), each test asserting the
 flag's effect on what is written, not just that the command runs.
 
 * slice: ``--strict`` (same bytes, more evaluations), ``--contour-tol``
@@ -25,10 +25,10 @@ from click.testing import CliRunner
 from PIL import Image
 
 from slicer import Skeleton, load_scene
-from slicer._kernels.launch import serial
-from slicer.cli import main
-from slicer.lattice import generate_lattice
-from slicer.rendering import Camera, render
+from slicer._kernels.runtime.launch import serial
+from slicer.cli.app import main
+from slicer.scene.lattice import generate_lattice
+from slicer.render.rendering import Camera, render
 
 #: the chiral test model: a post, a long +x arm and a short +y arm (radius 0.3)
 ELL = Skeleton([[0, 0, 0], [0, 0, 1.6], [2.0, 0, 1.6], [0, 1.0, 1.6]], [[0, 1], [1, 2], [1, 3]],

@@ -20,8 +20,8 @@ from hypothesis import strategies as st
 
 from formats.base import encode_workers
 from interrupting import interrupt_and_check, start_slice, wait_mid_write
-from slicer.cli import main
-from slicer.lattice import generate_lattice
+from slicer.cli.app import main
+from slicer.scene.lattice import generate_lattice
 
 
 def run(*args, **kw):
@@ -104,15 +104,15 @@ def test_max_memory_budget_streams_and_says_so(scene, tmp_path, monkeypatch):
     and the run, which made the plan's choice depend on the garbage collector.
     The budget is matched as the plan prints it (in GiB once it passes 1 GiB,
     as it does late in a long session)."""
-    import slicer.tileplan
+    import slicer.scale.tileplan
     from slicer import load_scene
-    from slicer.tiles import current_rss, format_size, plan_slice
+    from slicer.scale.tiles import current_rss, format_size, plan_slice
 
     ref = tmp_path / "ref"
     assert run("slice", scene, "-o", ref, "--pixel-size", "0.035", "-q", "--max-memory", "none").exit_code == 0
     plan_slice(load_scene(scene), 0.035, sample=True)      # kernels loaded: RSS is realistic
     held = current_rss()
-    monkeypatch.setattr(slicer.tileplan, "current_rss", lambda: held)
+    monkeypatch.setattr(slicer.scale.tileplan, "current_rss", lambda: held)
     plan = plan_slice(load_scene(scene), 0.035, sample=True)
     assert plan.estimate["process"] == held
     job = plan.estimate["total"] - plan.estimate["process"]
@@ -176,12 +176,12 @@ def test_dry_run_refuses_absurd_grids_at_once(scene, tmp_path):
 
 
 def test_absurd_grid_refused_before_a_cluster_starts(scene, tmp_path, monkeypatch):
-    import slicer.executors
+    import slicer.scale.executors
 
     def boom(*a, **k):
         raise AssertionError("an executor was opened")
 
-    monkeypatch.setattr(slicer.executors, "open_executor", boom)
+    monkeypatch.setattr(slicer.scale.executors, "open_executor", boom)
     r = run("slice", scene, "-o", tmp_path / "o", "--pixel-size", "2e-5", "--executor", "dask")
     assert_refused(r, "voxels", "limit")
     r = run("slice", scene, "-o", tmp_path / "o", "--pixel-size", "-0.05", "--executor", "processes")
@@ -379,7 +379,7 @@ def test_progress_bars_are_quiet_off_a_terminal_and_shown_when_asked(scene, tmp_
     r = run("slice", scene, "-o", tmp_path / "quiet", "--pixel-size", "0.05", "-q", "--slab", "30", "--tile", "64")
     assert r.exit_code == 0 and r.stdout == "" and r.stderr == ""     # CliRunner is not a terminal
     from slicer import load_scene
-    from slicer.job import run_slice
+    from slicer.job.run import run_slice
 
     run_slice(load_scene(scene), tmp_path / "bars", pixel_size=0.05, slab=30, tile=64, progress=True)
     err = capsys.readouterr().err

@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 from interrupting import interrupt_and_check, start_slice, wait_mid_write
 from slicer import Skeleton
-from slicer.cli import main
+from slicer.cli.app import main
 
 
 @pytest.fixture(scope="module")
@@ -117,7 +117,7 @@ def test_bad_scene_through_slice(tmp_path):
 def test_failure_mid_write_leaves_nothing(scene, tmp_path, monkeypatch):
     """A crash while layers are being written leaves no output and no temporary folder."""
     from formats.png_stack import PngStackWriter
-    from slicer.job import run_slice
+    from slicer.job.run import run_slice
     from slicer import load_scene
 
     real = PngStackWriter.store_layer      # the in-order step of writing a layer (encoding runs on a pool)
@@ -152,16 +152,16 @@ def test_signal_while_writing_a_traced_result_leaves_no_output(tmp_path, sig):
 def test_sigterm_is_handled_only_while_a_command_runs(scene, tmp_path, monkeypatch):
     """The SIGTERM handler (a clean exit, like Ctrl-C) is in force inside the
     command and restored afterwards, so an embedding process keeps its own."""
-    import slicer.commands.slice
+    import slicer.cli.commands.slice
 
-    real = slicer.commands.slice.run_slice
+    real = slicer.cli.commands.slice.run_slice
     seen = []
 
     def spy(*a, **k):
         seen.append(signal.getsignal(signal.SIGTERM))
         return real(*a, **k)
 
-    monkeypatch.setattr(slicer.commands.slice, "run_slice", spy)
+    monkeypatch.setattr(slicer.cli.commands.slice, "run_slice", spy)
     before = signal.getsignal(signal.SIGTERM)
     assert run("slice", scene, "-o", tmp_path / "o", "--pixel-size", "0.1", "-q").exit_code == 0
     assert len(seen) == 1 and seen[0] not in (signal.SIG_DFL, signal.SIG_IGN, None)

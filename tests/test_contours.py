@@ -13,12 +13,12 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from slicer import Skeleton
-from slicer.cli import main
+from slicer.cli.app import main
 from slicer.contours import (iter_contours, layer_contours, layer_mask, mask_rings, rings_to_multipolygon,
                              solve_crossings)
 from slicer.contours.roots import project_to_contour
-from slicer.field import evaluate
-from slicer.slicing import slice_skeleton
+from slicer.model.field import evaluate
+from slicer.tracer.slicing import slice_skeleton
 from validation.metrics import polygon_rings, rasterize_rings
 
 TOL = 1e-3

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from slicer import Skeleton
-from slicer.commands.info import MIN_ISOLATED_LENGTH
-from slicer.skeleton import DEFAULT_DEGREE, DEFAULT_SIGMA, kernel_normalisation
-from slicer._kernels.field import SCRATCH, SHORT_Z, _moments, _series_sum
-from slicer._kernels.raysupport import kprime_abs, kprime_max
+from slicer.cli.commands.info import MIN_ISOLATED_LENGTH
+from slicer.model.skeleton import DEFAULT_DEGREE, DEFAULT_SIGMA, kernel_normalisation
+from slicer._kernels.field.segment import SCRATCH, SHORT_Z, _moments, _series_sum
+from slicer._kernels.rays.support import kprime_abs, kprime_max
 from validation.reference_field import normalisation as reference_normalisation
 
 MATH = Path(__file__).resolve().parent.parent / "docs" / "math.md"

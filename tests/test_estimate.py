@@ -20,9 +20,9 @@ import pytest
 
 from formats import WRITERS
 from formats.estimate import LayerMeter, PrintEstimate, duration, exposure_times, print_estimate
-from formats.printers import PRINTERS, PrintSettings
+from formats.printer_profiles import PRINTERS, PrintSettings
 from slicer import Skeleton, load_scene
-from slicer.grid import SliceGrid
+from slicer.tracer.grid import SliceGrid
 from test_formats_ctb import read_ctb
 from test_formats_images import read_goo_lazy, run
 from test_formats_photon import read_photon
@@ -193,7 +193,7 @@ def test_aa_z_volume_is_the_span_integral(scene, tmp_path):
     """--aa-z greys are the exact z coverage: the NanoDLP volume equals the
     tracer's inside spans integrated over the grid, to half a grey level per
     partly covered voxel."""
-    from slicer.slicing import slice_skeleton
+    from slicer.tracer.slicing import slice_skeleton
 
     out = tmp_path / "y.nanodlp"
     assert run("slice", scene, "-o", out, "--pixel-size", "0.05", "--layer-height", "0.2", "--aa-z",

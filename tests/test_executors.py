@@ -1,4 +1,4 @@
-"""Executors (slicer.executors): one concurrent.futures path for serial, threads,
+"""Executors (slicer.scale.executors): one concurrent.futures path for serial, threads,
 processes and Dask; outputs compared byte for byte with the in-process run."""
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ import pytest
 from click.testing import CliRunner
 
 from slicer import GridError, OptionError
-from slicer.cli import main
-from slicer.executors import SerialExecutor, executor_info, map_ordered, open_executor
-from slicer.job import run_slice
-from slicer.lattice import generate_lattice
+from slicer.cli.app import main
+from slicer.scale.executors import SerialExecutor, executor_info, map_ordered, open_executor
+from slicer.job.run import run_slice
+from slicer.scene.lattice import generate_lattice
 
 distributed = pytest.importorskip("distributed", reason="Dask is in the 'dist' and 'test' extras")
 
@@ -121,9 +121,9 @@ def test_open_executor_refuses_bad_requests(kind, workers, scheduler, match):
 
 
 def test_unreachable_scheduler_is_a_clear_error(monkeypatch):
-    import slicer.executors
+    import slicer.scale.executors
 
-    monkeypatch.setattr(slicer.executors, "CONNECT_TIMEOUT", "2s")
+    monkeypatch.setattr(slicer.scale.executors, "CONNECT_TIMEOUT", "2s")
     t0 = time.perf_counter()
     with pytest.raises(OptionError, match="--scheduler: cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
         with open_executor("dask", scheduler="tcp://127.0.0.1:9"):
@@ -146,7 +146,7 @@ def test_every_executor_writes_the_same_bytes(kind, lattice, serial_stack, clust
     scheduler = cluster.scheduler_address if kind == "dask" else None
     out = tmp_path / "stack"
     with open_executor(kind, 2, scheduler) as (ex, info):
-        from slicer.tiles import plan_slice
+        from slicer.scale.tiles import plan_slice
 
         K = plan_slice(lattice, 0.05, process_bytes=0).grid.layers
         budget = plan_slice(lattice, 0.05, executor_info=info, tile=32, sample=True,
@@ -185,9 +185,9 @@ def test_pool_workers_get_numpy_arrays_not_the_scene(lattice):
     """The task payload is the culled arrays (small), picklable for any pool."""
     import pickle
 
-    from slicer.field import support_boxes
-    from slicer.grid import make_grid
-    from slicer.tiles import TraceOptions, cull, trace_tile
+    from slicer.model.field import support_boxes
+    from slicer.tracer.grid import make_grid
+    from slicer.scale.tiles import TraceOptions, cull, trace_tile
 
     g = make_grid(lattice.support_bounds(), 0.05)
     sub = g.sub(0, 0, 0, 32, 32, g.layers)

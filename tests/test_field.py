@@ -44,12 +44,12 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import reference as ref  # noqa: E402  (independent: does not import slicer)
 
 from slicer import Skeleton  # noqa: E402
-from slicer.field import point_grid, segment_table  # noqa: E402
-from slicer._kernels.field import (HALF_LANES, LANES, SCRATCH, lane_copy, lane_load, lane_result,  # noqa: E402
+from slicer.model.field import point_grid, segment_table  # noqa: E402
+from slicer._kernels.field.segment import (HALF_LANES, LANES, SCRATCH, lane_copy, lane_load, lane_result,  # noqa: E402
                                    segment_eval, segment_half_lanes, segment_lanes, support_interval)
-from slicer._kernels.points import REACH_SLACK, may_reach, point_field  # noqa: E402
-from slicer._kernels.rays import eval_along  # noqa: E402
-from slicer._kernels.raysupport import H_TIN, H_TOUT, NHIT  # noqa: E402
+from slicer._kernels.field.points import REACH_SLACK, may_reach, point_field  # noqa: E402
+from slicer._kernels.rays.walk import eval_along  # noqa: E402
+from slicer._kernels.rays.support import H_TIN, H_TOUT, NHIT  # noqa: E402
 
 SIG = 2.0
 N6 = 1.4968340312323631

@@ -37,7 +37,7 @@ from formats.contour_base import ContourWriter, oriented_polygons
 from formats.svg import SvgWriter
 from formats.threemf_slices import ThreeMFSliceWriter
 from slicer import Skeleton
-from slicer.cli import main
+from slicer.cli.app import main
 from slicer.errors import OutputError
 
 lib3mf = pytest.importorskip("lib3mf")

@@ -26,7 +26,7 @@ from PIL import Image
 
 from formats.ctb import GREYS, KEY, cipher, encode_preview, encode_rle, keystream
 from formats.estimate import print_estimate
-from formats.printers import PRINTERS, PrintSettings
+from formats.printer_profiles import PRINTERS, PrintSettings
 from test_formats_images import ell, run  # noqa: F401  (the chiral test model, CliRunner helper)
 from uv3dp_checks import uv3dp_convert, uv3dp_layers
 
@@ -298,7 +298,7 @@ def test_ctb_needs_a_printer(ell, tmp_path):
 
 
 @pytest.mark.parametrize("args, needle", [
-    # beyond float32 is beyond the magnitude every option is held to (slicer.checks), refused first
+    # beyond float32 is beyond the magnitude every option is held to (slicer.arguments), refused first
     (["--exposure", "1e39"], "--exposure = 1e+39 s is beyond the supported magnitude 1e+09 s"),
     (["--bottom-layers", "5000000000"],
      "ctb: --bottom-layers must be an integer from 0 to 4294967295, got 5,000,000,000")])

@@ -36,11 +36,11 @@ from PIL import Image
 
 from conftest import missing_tool
 from formats.goo import HEADER_SIZE, GooWriter, encode_layer
-from formats.printers import PRINTERS, PrintSettings
+from formats.printer_profiles import PRINTERS, PrintSettings
 from interrupting import interrupt_and_check, start_slice, wait_mid_write
 from slicer import Skeleton
-from slicer.cli import main
-from slicer.grid import SliceGrid
+from slicer.cli.app import main
+from slicer.tracer.grid import SliceGrid
 
 
 

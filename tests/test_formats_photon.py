@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 from PIL import Image
 
 from formats.photon import MACHINES, PHOTON_WRITERS, PW0_GREYS, encode_pw0, encode_pws, pws_greys
-from formats.printers import PRINTERS, PrintSettings
+from formats.printer_profiles import PRINTERS, PrintSettings
 from slicer.errors import FormatError
 from test_formats_images import ell, run  # noqa: F401  (the chiral test model, CliRunner helper)
 from uv3dp_checks import sha256, uv3dp_convert, uv3dp_layers

@@ -1,7 +1,7 @@
 """Fuzzing every command through the real entry point: hostile scenes and hostile numbers.
 
 Each test draws a scene file (tests/fuzz_helpers.py: JSON versions 1 and 2, OBJ, 3MF) and
-a set of option values, runs the command with click's CliRunner on :func:`slicer.cli.main`
+a set of option values, runs the command with click's CliRunner on :func:`slicer.cli.app.main`
 in a fresh folder, and checks :func:`fuzz_helpers.check_run`: exit 0 or 2 (1 where the command
 documents it: ``check`` found a blocking problem, ``validate`` a failed comparison), no
 traceback, nothing left behind on exit 2. A few runs go through the installed ``skelslice``
@@ -26,8 +26,8 @@ from click.testing import CliRunner
 from hypothesis import given
 from hypothesis import strategies as st
 
-from formats.printers import PRINTERS
-from slicer.cli import main
+from formats.printer_profiles import PRINTERS
+from slicer.cli.app import main
 
 from fuzz_helpers import (RUNS, Opt, check_run, choice, fuzz_settings, json_scene, json_text, opt_tuple, rarely,
                           scene_file, text_int, text_number, write_inputs)

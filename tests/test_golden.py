@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from sample_lattices import SAMPLES
-from slicer.slicing import SliceResult
+from slicer.tracer.slicing import SliceResult
 from validation.stiff import CASE_NAMES
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -12,8 +12,8 @@ from slicer import Skeleton
 from slicer.contours import check_resolvable, iter_contours, mask_rings, plane_contours
 from slicer.contours.cells import _root_grid, plane_segments
 from slicer.errors import OptionError
-from slicer.field import evaluate
-from slicer.slicing import slice_skeleton
+from slicer.model.field import evaluate
+from slicer.tracer.slicing import slice_skeleton
 from validation.independent import assemble, boundary_hausdorff, dense_section
 
 TOL = 1e-3
@@ -143,7 +143,7 @@ def test_cli_refuses_an_unresolvable_tolerance_before_any_work(tmp_path):
 
     from click.testing import CliRunner
 
-    from slicer.cli import main
+    from slicer.cli.app import main
 
     scene = tmp_path / "far.json"
     scene.write_text(json.dumps({"skelslice": 1, "units": "mm", "nodes": [[1e5, 0, 0], [1e5, 0, 2]],

@@ -13,10 +13,10 @@ import slicer._kernels as kernels_pkg
 #: discovery must find at least this many, so a broken walk cannot pass silently
 MIN_DISPATCHERS = 7
 KNOWN = {
-    "slicer._kernels.field.segment_eval",
-    "slicer._kernels.field.support_interval",
-    "slicer._kernels.binning.bin_boxes",
-    "slicer._kernels.points.field_at_points",
+    "slicer._kernels.field.segment.segment_eval",
+    "slicer._kernels.field.segment.support_interval",
+    "slicer._kernels.field.binning.bin_boxes",
+    "slicer._kernels.field.points.field_at_points",
 }
 
 
@@ -100,12 +100,12 @@ def _returned_arrays(src: str) -> list[str]:
 
 
 def test_the_ray_walks_and_the_field_are_unrefcounted():
-    for name in ("slicer._kernels.trace.trace_ray_interval", "slicer._kernels.render.render_ray",
-                 "slicer._kernels.field.segment_eval", "slicer._kernels.field.segment_lanes",
-                 "slicer._kernels.field.segment_half_lanes", "slicer._kernels.quadtree._classified"):
+    for name in ("slicer._kernels.trace.summed.trace_ray_interval", "slicer._kernels.render.walk.render_ray",
+                 "slicer._kernels.field.segment.segment_eval", "slicer._kernels.field.segment.segment_lanes",
+                 "slicer._kernels.field.segment.segment_half_lanes", "slicer._kernels.contours.quadtree._classified"):
         assert name in UNREFCOUNTED, name
     # the evaluation along a ray is inlined into those walks: no call, nothing counted
-    for name in ("slicer._kernels.rays.eval_along", "slicer._kernels.rays.eval_lanes_along"):
+    for name in ("slicer._kernels.rays.walk.eval_along", "slicer._kernels.rays.walk.eval_lanes_along"):
         assert DISPATCHERS[name].get("inline") == "always", name
 
 

@@ -10,15 +10,15 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import slicer
-import slicer.rendering
-from slicer.cli import main
+import slicer.render.rendering
+from slicer.cli.app import main
 from slicer.errors import FormatError, GridError, MissingDependencyError, OptionError, UsageError
-from slicer.grid import make_grid
-from slicer.job import footprint_lower_bound, run_slice
-from slicer.jobspec import OPTIONS, SliceJob
-from slicer.lattice import generate_lattice
-from slicer.skeleton import Skeleton
-from slicer.slicing import trace
+from slicer.tracer.grid import make_grid
+from slicer.job.run import footprint_lower_bound, run_slice
+from slicer.job.spec import OPTIONS, SliceJob
+from slicer.scene.lattice import generate_lattice
+from slicer.model.skeleton import Skeleton
+from slicer.tracer.slicing import trace
 
 
 def test_from_options_round_trips_every_option():
@@ -117,13 +117,13 @@ def test_footprint_lower_bound_is_tight_on_a_strut():
 
 def test_too_big_for_the_plate_is_refused_before_tracing(tmp_path, monkeypatch):
     """The plate check runs before any tracing: tracing is made to fail loudly."""
-    import slicer.job
+    import slicer.job.run
 
     def no_tracing(*a, **k):
         raise AssertionError("traced before refusing")
 
-    monkeypatch.setattr(slicer.job, "slice_skeleton", no_tracing)
-    monkeypatch.setattr(slicer.job, "slice_planned", no_tracing)
+    monkeypatch.setattr(slicer.job.run, "slice_skeleton", no_tracing)
+    monkeypatch.setattr(slicer.job.run, "slice_planned", no_tracing)
     lat = generate_lattice("cubic", (30, 3, 1), 5.0, 0.4)          # 150 x 15 mm
     with pytest.raises(GridError, match=r"at least 150\.\d\d x 15\.\d\d mm\) does not fit .*128 x 81 mm"):
         run_slice(lat, tmp_path / "x.sl1s", printer="prusa-sl1s", progress=False)
@@ -131,9 +131,9 @@ def test_too_big_for_the_plate_is_refused_before_tracing(tmp_path, monkeypatch):
 
 
 def test_too_tall_for_the_printer_is_refused_before_tracing(tmp_path, monkeypatch):
-    import slicer.job
+    import slicer.job.run
 
-    monkeypatch.setattr(slicer.job, "slice_skeleton", lambda *a, **k: pytest.fail("traced"))
+    monkeypatch.setattr(slicer.job.run, "slice_skeleton", lambda *a, **k: pytest.fail("traced"))
     tall = Skeleton([[60, 40, 0], [60, 40, 160]], [[0, 1]], [[0.5, 0.5]])
     with pytest.raises(GridError, match=r"at least 16\d\.\d\d mm tall.*at most 150 mm"):
         run_slice(tall, tmp_path / "t.sl1s", printer="prusa-sl1s", progress=False)
@@ -156,8 +156,8 @@ def test_public_api_is_importable_from_slicer():
         assert callable(getattr(slicer, name)), name
         assert getattr(slicer, name).__doc__, name
     assert slicer.run_slice is run_slice and slicer.SliceJob is SliceJob
-    # the function, not its module (importing slicer.rendering must not shadow it)
-    assert slicer.render is slicer.rendering.render
+    # the function, not its module (importing slicer.render.rendering must not shadow it)
+    assert slicer.render is slicer.render.rendering.render
     img = slicer.render(Skeleton([[0, 0, 0], [0, 0, 2]], [[0, 1]], [[0.5, 0.5]]), size=(9, 9), view="top")
     assert img.rgba.shape == (9, 9, 4) and img.rgba[4, 4, 3] > 0 and img.rgba[0, 0, 3] == 0
     with pytest.raises(AttributeError):

@@ -1,4 +1,4 @@
-"""Lattice generator (slicer.lattice) and the ``skelslice lattice`` command."""
+"""Lattice generator (slicer.scene.lattice) and the ``skelslice lattice`` command."""
 from __future__ import annotations
 
 import doctest
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-import slicer.lattice
+import slicer.scene.lattice
 from slicer import SceneError, Skeleton, load_scene
-from slicer.cli import main
-from slicer.lattice import CELL_TYPES, generate_lattice, unit_cell
+from slicer.cli.app import main
+from slicer.scene.lattice import CELL_TYPES, generate_lattice, unit_cell
 
 
 def _strut_set(skel: Skeleton) -> set[tuple[tuple[float, ...], tuple[float, ...]]]:
@@ -304,7 +304,7 @@ def test_errors_are_value_errors():
 
 
 def test_docstring_examples():
-    result = doctest.testmod(slicer.lattice, optionflags=doctest.NORMALIZE_WHITESPACE)
+    result = doctest.testmod(slicer.scene.lattice, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted >= 4 and result.failed == 0
 
 

@@ -1,10 +1,10 @@
-"""The one launch/retry loop of the tracer and the renderer (slicer._kernels.launch)."""
+"""The one launch/retry loop of the tracer and the renderer (slicer._kernels.runtime.launch)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from slicer._kernels.launch import launch_until_fits
+from slicer._kernels.runtime.launch import launch_until_fits
 
 
 def test_items_are_relaunched_with_growing_room_until_they_fit():

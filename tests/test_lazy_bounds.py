@@ -1,4 +1,4 @@
-"""The lazy walk's bounds (slicer._kernels.lazy) hold the field on random rays through one segment.
+"""The lazy walk's bounds (slicer._kernels.rays.lazy) hold the field on random rays through one segment.
 
 A primitive is bounded at t from its last evaluation at tc alone (unimodality
 along the ray): these tests evaluate at a random tc, then check every bound
@@ -13,11 +13,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sample_lattices import load_sample
-from slicer._kernels.field import SCRATCH
-from slicer._kernels.lazy import bound_at, eval_dir
-from slicer._kernels.rays import piece_bounds_iv
-from slicer._kernels.raysupport import H_TIN, H_TOUT
-from slicer.rendering import render
+from slicer._kernels.field.segment import SCRATCH
+from slicer._kernels.rays.lazy import bound_at, eval_dir
+from slicer._kernels.rays.walk import piece_bounds_iv
+from slicer._kernels.rays.support import H_TIN, H_TOUT
+from slicer.render.rendering import render
 from test_ray_unimodal import rays
 
 #: rounding slack of the compiled field relative to the ray's peak

@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from slicer.errors import SceneError
-from slicer.mesh_intersect import orient2d, orient3d, self_intersections
-from slicer.meshes import make_mesh, merge_coincident, read_mesh_file
+from slicer.parts.mesh_intersect import orient2d, orient3d, self_intersections
+from slicer.parts.meshes import make_mesh, merge_coincident, read_mesh_file
 
 BOX = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
 

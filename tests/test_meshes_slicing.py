@@ -9,9 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from parts_helpers import centres, inside_mesh, rotated, tmesh
-from slicer.grid import SliceGrid
-from slicer.meshes import make_mesh
-from slicer.mesh_slicing import (Sections, Soup, column_spans, combine_intervals, layer_masks, part_op,
+from slicer.tracer.grid import SliceGrid
+from slicer.parts.meshes import make_mesh
+from slicer.parts.mesh_slicing import (Sections, Soup, column_spans, combine_intervals, layer_masks, part_op,
                                  runs_from_masks)
 
 
@@ -174,7 +174,7 @@ def test_grid_aligned_convex_hulls(seed):
     go either way on slanted faces (rounding of the cut points, as F = 1 for the lattice)."""
     import manifold3d
 
-    from slicer.mesh_intersect import orient3d
+    from slicer.parts.mesh_intersect import orient3d
 
     rng = np.random.default_rng(seed)
     pitch = np.array([0.25, 0.25, 0.5])

@@ -1,4 +1,4 @@
-"""Linear-time stable orders (slicer.ordering): NumPy's stable sorts are the reference."""
+"""Linear-time stable orders (slicer.raster.ordering): NumPy's stable sorts are the reference."""
 from __future__ import annotations
 
 import re
@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from slicer.ordering import layer_events, lexsort2, rect_parts, stable_argsort
+from slicer.raster.ordering import layer_events, lexsort2, rect_parts, stable_argsort
 
 # keys spanning one, two and three radix digits, with many ties at the low end
 _KEYS = st.one_of(

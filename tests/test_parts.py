@@ -12,13 +12,13 @@ from click.testing import CliRunner
 from PIL import Image
 
 from parts_helpers import centres, inside_mesh, rotated, tmesh
-from slicer.cli import main
+from slicer.cli.app import main
 from slicer.errors import SceneError
-from slicer.field import evaluate
-from slicer.part_slicing import PartResult, PartStreamedResult, slice_part, slice_part_planned
-from slicer.parts import Part, PartMesh, load_part
-from slicer.skeleton import Skeleton
-from slicer.slicing import slice_skeleton
+from slicer.model.field import evaluate
+from slicer.parts.slicing import PartResult, PartStreamedResult, slice_part, slice_part_planned
+from slicer.parts.part import Part, PartMesh, load_part
+from slicer.model.skeleton import Skeleton
+from slicer.tracer.slicing import slice_skeleton
 
 #: a small lattice: four struts through a node, and a strut beside them
 LATTICE = Skeleton([[-2.5, 0, 0], [2.5, 0, 0], [0, -2.5, 0], [0, 2.5, 0], [0, 0, -2.5], [0, 0, 2.5],

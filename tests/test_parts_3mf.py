@@ -10,12 +10,12 @@ import trimesh
 from click.testing import CliRunner
 
 from parts_helpers import add_lattice, add_mesh, box_mesh, centres, inside_mesh, write_3mf
-from slicer.cli import main
+from slicer.cli.app import main
 from slicer.errors import SceneError
-from slicer.field import evaluate
-from slicer.part_slicing import slice_part
-from slicer.parts import load_part
-from slicer.scene_3mf import load_3mf
+from slicer.model.field import evaluate
+from slicer.parts.slicing import slice_part
+from slicer.parts.part import load_part
+from slicer.scene.threemf import load_3mf
 
 lib3mf = pytest.importorskip("lib3mf")
 

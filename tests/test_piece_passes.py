@@ -14,11 +14,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from slicer import Skeleton
-from slicer._kernels import cellbounds as cb
-from slicer._kernels import ridgebounds as rb
-from slicer._kernels.field import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
-from slicer._kernels.raysupport import kprime_max
-from slicer.field import point_grid
+from slicer._kernels.contours import cellbounds as cb
+from slicer._kernels.contours import ridgebounds as rb
+from slicer._kernels.field.segment import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
+from slicer._kernels.rays.support import kprime_max
+from slicer.model.field import point_grid
 
 SLACK = cb.SLACK
 _ipow = cb._ipow.py_func

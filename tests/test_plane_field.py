@@ -1,8 +1,8 @@
-"""The field on one layer plane (slicer.field.plane_footprints, plane_grid,
+"""The field on one layer plane (slicer.model.field.plane_footprints, plane_grid,
 evaluate_plane) and the cheap-first disc bounds of the contour quadtree.
 
 The plane's support grid lists, per square, only the segments whose support
-section can reach it: a point must get the value of :func:`slicer.field.evaluate`
+section can reach it: a point must get the value of :func:`slicer.model.field.evaluate`
 to the bit, which holds only if no segment that reaches it is left out.
 """
 from __future__ import annotations
@@ -17,10 +17,10 @@ from hypothesis import strategies as st
 import quadtree_reference
 from sample_lattices import load_sample
 from slicer import Skeleton
-from slicer._kernels.cellbounds import PIECES, SLACK, disc_bounds
+from slicer._kernels.contours.cellbounds import PIECES, SLACK, disc_bounds
 from slicer.contours.cells import COARSE_PIECES, IN, OUT, SIMPLE, _Bounds, _root_grid, plane_segments
 from slicer.errors import SceneError
-from slicer.field import evaluate, evaluate_plane, plane_footprints, plane_grid, segment_table, support_boxes
+from slicer.model.field import evaluate, evaluate_plane, plane_footprints, plane_grid, segment_table, support_boxes
 
 
 def _skeleton(rng: np.random.Generator, k: int, flat: bool, degree: int) -> Skeleton:

@@ -24,9 +24,9 @@ from PIL import Image
 
 from formats.goo import HEADER_SIZE, encode_layer
 from slicer import Skeleton
-from slicer._kernels.rle import OK, decode_goo
-from slicer.cli import main
-from slicer.preview import decode_ring, layer_png
+from slicer._kernels.formats.goo_rle import OK, decode_goo
+from slicer.cli.app import main
+from slicer.viewer.page import decode_ring, layer_png
 
 
 def run(*args):

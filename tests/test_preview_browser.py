@@ -19,7 +19,7 @@ from click.testing import CliRunner
 from PIL import Image
 
 from slicer import Skeleton
-from slicer.cli import main
+from slicer.cli.app import main
 
 import browser
 

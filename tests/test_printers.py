@@ -15,7 +15,7 @@ import pytest
 from PIL import Image
 
 from formats import WRITERS
-from formats.printers import PRINTERS, get_printer
+from formats.printer_profiles import PRINTERS, get_printer
 from slicer import Skeleton
 from slicer.errors import GridError, OptionError
 from test_cli_slice import assert_refused, run

@@ -1,5 +1,5 @@
 """The guaranteed contours' quadtree as one compiled call
-(slicer._kernels.quadtree) against the whole-array numpy steps it replaced
+(slicer._kernels.contours.quadtree) against the whole-array numpy steps it replaced
 (tests/quadtree_reference.py): the same leaves, states, bounds, known values
 and counts, bit for bit, on planes with and without crest cells, whatever the
 thread count."""
@@ -15,11 +15,11 @@ from hypothesis import strategies as st
 import quadtree_reference as ref
 from sample_lattices import load_sample
 from slicer import Skeleton
-from slicer._kernels.cellbounds import SLACK
-from slicer._kernels.launch import numba_threads, serial
+from slicer._kernels.contours.cellbounds import SLACK
+from slicer._kernels.runtime.launch import numba_threads, serial
 from slicer.contours import cells
 from slicer.contours.cells import THIN_FRACTION, _quadtree, _root_grid, plane_segments
-from slicer.field import evaluate
+from slicer.model.field import evaluate
 
 #: four struts lying in the plane z = 0 meet a vertical one: planes z = ±0.3 touch them along crests
 CROSS = Skeleton([[0, 0, 0], [2, 0, 0], [-2, 0, 0], [0, 2, 0], [0, -2, 0], [0, 0, 1.5]],
@@ -130,7 +130,7 @@ def test_the_convexity_pretest_refuses_only_what_the_crest_bound_would(name, z):
 
 @pytest.mark.parametrize("name, z, tol", PLANES[:3] + PLANES[4:5])
 def test_compiled_leaf_walks_are_the_numpy_ones(name, z, tol):
-    """The walks over the walked leaves' boundaries (slicer._kernels.contours.leaf_walks)
+    """The walks over the walked leaves' boundaries (slicer._kernels.contours.chain.leaf_walks)
     against the numpy steps: the same points, in the same order, and the same steps."""
     (X0, Y0, X1, Y1, state, *_), _ = _compiled(_skel(name), z, tol)
     act = np.flatnonzero(state >= cells.SIMPLE)
@@ -144,7 +144,7 @@ def test_compiled_leaf_walks_are_the_numpy_ones(name, z, tol):
 @pytest.mark.parametrize("name, z, tol", PLANES[:3] + PLANES[4:5])
 def test_compiled_crossing_pairs_are_the_numpy_ones(name, z, tol):
     """Crossings along the walks, paired exit -> next crossing
-    (slicer._kernels.contours.pair_crossings), against the numpy steps, with
+    (slicer._kernels.contours.chain.pair_crossings), against the numpy steps, with
     the field's signs at the walks' points."""
     skel = _skel(name)
     b, (x0, y0, s0, nx, ny, levels) = _setup(skel, z, tol, cells)

@@ -4,9 +4,9 @@ The non-strict tracer (``--strict`` off) relies on one segment's field being
 unimodal along every ray (docs/math.md §3.3): per primitive, a piece whose ends
 both slope up is taken as increasing, and an ambiguous piece is bounded
 below by its smaller end value. These tests call the kernels that do this —
-:func:`slicer._kernels.raysupport.ray_support` (support entry and exit, the
-cut ``t*``, the whole-ray bound ``H_FMAX``), :func:`slicer._kernels.rays.eval_along`
-and :func:`slicer._kernels.rays.piece_bounds` — on random rays in any
+:func:`slicer._kernels.rays.support.ray_support` (support entry and exit, the
+cut ``t*``, the whole-ray bound ``H_FMAX``), :func:`slicer._kernels.rays.walk.eval_along`
+and :func:`slicer._kernels.rays.walk.piece_bounds` — on random rays in any
 direction, over taper ratios r1/r0 from 1 to 1e4, nested end balls
 (sigma |r1 - r0| > L), the critical tapers the code special-cases (E = 0:
 L = sigma |r1 - r0|; A = 0: the ray parallel to a generator of the support
@@ -38,11 +38,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from slicer import Skeleton
-from slicer._kernels.field import SCRATCH
-from slicer._kernels.launch import serial
-from slicer._kernels.rays import eval_along, piece_bounds
-from slicer._kernels.raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, kprime_max, lipschitz, ray_support
-from slicer.field import segment_table
+from slicer._kernels.field.segment import SCRATCH
+from slicer._kernels.runtime.launch import serial
+from slicer._kernels.rays.walk import eval_along, piece_bounds
+from slicer._kernels.rays.support import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, kprime_max, lipschitz, ray_support
+from slicer.model.field import segment_table
 from validation import reference_field as ref
 
 #: samples of the field on [t_in, t_out] (and on each piece)

@@ -11,11 +11,11 @@ from hypothesis import strategies as st
 import refine_reference as ref
 from sample_lattices import load_sample
 from slicer import Skeleton
-from slicer._kernels.refine import insert_after, ring_next
+from slicer._kernels.contours.refine import insert_after, ring_next
 from slicer.contours import guaranteed_rings, layer_mask, mask_rings, refine_rings, solve_crossings
 from slicer.contours.roots import plane_distance, project_to_contour
-from slicer.field import evaluate
-from slicer.slicing import slice_skeleton
+from slicer.model.field import evaluate
+from slicer.tracer.slicing import slice_skeleton
 
 TRIPOD = Skeleton([[0, 0, 0], [3, 1, 2], [5, -1, 2], [1, 3, 1]], [[0, 1], [1, 2], [1, 3]],
                   [[0.4, 0.9], [0.9, 0.3], [0.9, 0.5]])

@@ -23,9 +23,9 @@ from click.testing import CliRunner
 from PIL import Image
 
 from slicer import Skeleton
-from slicer.cli import main
-from slicer.lattice import generate_lattice
-from slicer.rendering import (AMBIENT, BACK_COLOUR, DIFFUSE, FRONT_COLOUR, LIGHT, SHININESS, SPECULAR, Camera,
+from slicer.cli.app import main
+from slicer.scene.lattice import generate_lattice
+from slicer.render.rendering import (AMBIENT, BACK_COLOUR, DIFFUSE, FRONT_COLOUR, LIGHT, SHININESS, SPECULAR, Camera,
                            make_camera, render, screen_boxes)
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
@@ -189,8 +189,8 @@ def test_roots_lie_on_the_surface_of_the_independent_reference():
 def test_ray_support_on_random_rays_matches_brute_force():
     """ray_support for arbitrary directions: [t_in, t_out] holds every sampled
     point of the support, and is tight up to the sampling step."""
-    from slicer._kernels.raysupport import H_TIN, H_TOUT, NHIT, kprime_max, ray_support
-    from slicer.field import segment_table
+    from slicer._kernels.rays.support import H_TIN, H_TOUT, NHIT, kprime_max, ray_support
+    from slicer.model.field import segment_table
 
     rng = np.random.default_rng(7)
     checked = 0
@@ -254,9 +254,9 @@ def test_refine_root_solves_the_cubic_only_where_the_crossing_is_kept():
     midpoint, from the same evaluations and the same gradient. Both lie
     within the tolerance of the crossing; the cubic's root is on it to far
     better than that. Bisection returns the midpoint either way."""
-    from slicer._kernels.field import SCRATCH
-    from slicer._kernels.render import field_grad_along, refine_root
-    from slicer.field import segment_table
+    from slicer._kernels.field.segment import SCRATCH
+    from slicer._kernels.render.walk import field_grad_along, refine_root
+    from slicer.model.field import segment_table
 
     skel = SCENES["cone"]
     seg = segment_table(skel)

@@ -20,7 +20,7 @@ import pytest
 from contour_checks import GRID, as_multipolygon, sample_layers, write_all
 from formats.common_layer import CliAsciiWriter, CliShortWriter, CliWriter, read_cli
 from slicer import Skeleton
-from slicer.grid import SliceGrid
+from slicer.tracer.grid import SliceGrid
 
 pytestmark = pytest.mark.slow
 
@@ -94,7 +94,7 @@ def fnv1a64(data: np.ndarray) -> str:
 @pytest.fixture
 def goo_job():
     goo = pytest.importorskip("formats.goo")
-    from formats.printers import PrintSettings, get_printer
+    from formats.printer_profiles import PrintSettings, get_printer
 
     base = get_printer("elegoo-mars-4-ultra")
     printer = dataclasses.replace(base, pixels=(48, 32), display=(48 * 0.018, 32 * 0.018))

@@ -9,10 +9,10 @@ import pytest
 from click.testing import CliRunner
 
 from slicer import Skeleton, load_scene
-from slicer.cli import main
+from slicer.cli.app import main
 from slicer.errors import SceneError
-from slicer.scene_3mf import load_3mf
-from slicer.slicing import slice_skeleton
+from slicer.scene.threemf import load_3mf
+from slicer.tracer.slicing import slice_skeleton
 
 lib3mf = pytest.importorskip("lib3mf")
 

@@ -10,8 +10,8 @@ import pytest
 
 from slicer import Skeleton
 from slicer.errors import GridError
-from slicer.grid import make_grid
-from slicer.slicing import slice_skeleton, trace, trim
+from slicer.tracer.grid import make_grid
+from slicer.tracer.slicing import slice_skeleton, trace, trim
 from test_trace import CASES, _node26
 
 SPAN_CASES = ["vertical_on_column", "horizontal_on_layer", "near_constant_taper", "cone_ratio_100",

@@ -6,7 +6,7 @@ tests for the two kernel fixes the suite led to.
   tracing methods (away from |F - 1| <= 1e-9), runs inside the grid, span
   ends on the reference roots, degenerate scenes refused with a clear error.
 * Field far along very long struts (1e6-1e7 radii): the support interval is
-  solved about the point's foot on the axis (slicer/_kernels/field.py), so the
+  solved about the point's foot on the axis (slicer/_kernels/field/segment.py), so the
   error no longer grows like eps * L / tau.
 * Directional Lipschitz bound with the support reach (raysupport.lipschitz):
   still sound along and across long struts, and no longer proportional to the
@@ -109,8 +109,8 @@ def test_field_far_along_very_long_struts(ratio, r1):
 
 
 def _lipschitz_case(L, r0, r1, tilt, off, ta_frac, w_frac):
-    from slicer._kernels.raysupport import H_TIN, H_TOUT, NHIT, kprime_max, lipschitz, ray_support
-    from slicer.field import segment_table
+    from slicer._kernels.rays.support import H_TIN, H_TOUT, NHIT, kprime_max, lipschitz, ray_support
+    from slicer.model.field import segment_table
 
     d = np.array([math.sin(tilt), 0.0, math.cos(tilt)])
     skel = Skeleton([[0, 0, 0], L * d], [[0, 1]], [[r0, r1]])
@@ -148,7 +148,7 @@ def test_lipschitz_along_a_long_axis_does_not_grow_with_length():
     """On a ray along the axis of a 1000-radii strut, a one-radius piece in the
     middle gets a bound set by the support reach, not by the strut length
     (before the reach cut it was ~L/(2 sigma tau) = 250 times larger)."""
-    from slicer._kernels.raysupport import H_LIP, H_S0, H_S1
+    from slicer._kernels.rays.support import H_LIP, H_S0, H_S1
 
     ks = []
     for L in (100.0, 1000.0):

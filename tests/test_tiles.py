@@ -1,4 +1,4 @@
-"""Tiled, memory-bounded slicing (slicer.tiles): plans, merging, streaming.
+"""Tiled, memory-bounded slicing (slicer.scale.tiles): plans, merging, streaming.
 
 The reference is the untiled path, ``slice_skeleton``: every plan (tile
 sizes, Z slabs, first pass for the model's extent) must give the same grid
@@ -16,14 +16,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from formats.printers import get_printer, place
+from formats.printer_profiles import get_printer, place
 from slicer import GridError, OptionError, Skeleton
-from slicer.buckets import DEFAULT_BUCKET
-from slicer.field import support_boxes
-from slicer.grid import make_grid
-from slicer.lattice import generate_lattice
-from slicer.slicing import SliceResult, slice_skeleton, trace
-from slicer.tiles import (StreamedResult, TraceOptions, cull, merge_tiles, parse_size, plan_job,
+from slicer.tracer.buckets import DEFAULT_BUCKET
+from slicer.model.field import support_boxes
+from slicer.tracer.grid import make_grid
+from slicer.scene.lattice import generate_lattice
+from slicer.tracer.slicing import SliceResult, slice_skeleton, trace
+from slicer.scale.tiles import (StreamedResult, TraceOptions, cull, merge_tiles, parse_size, plan_job,
                           plan_slice, slice_planned, trace_tile)
 
 PX = 0.05
@@ -339,7 +339,7 @@ def _slab_plan(lattice, prefetch: bool, slabs: int = 4):
 
 def _recording_tracer(monkeypatch):
     """Replace the tile task by one that records the first layer of every tile it traces."""
-    import slicer.tiles as tiles
+    import slicer.scale.tiles as tiles
 
     started, lock = [], threading.Lock()
 
@@ -393,7 +393,7 @@ def test_a_caller_that_stops_early_stops_the_prefetch(lattice, monkeypatch):
 
 
 def test_a_failure_while_prefetching_reaches_the_caller(lattice, monkeypatch):
-    import slicer.tiles as tiles
+    import slicer.scale.tiles as tiles
 
     plan, kw = _slab_plan(lattice, True, slabs=3)
     z1 = plan.grid.origin[2] + plan.slabs()[1][0] * plan.grid.layer_height

@@ -17,8 +17,8 @@ from hypothesis import given, settings, strategies as st
 from PIL import Image
 
 from slicer import Skeleton
-from slicer.grid import make_grid
-from slicer.slicing import METHODS, slice_skeleton, trace
+from slicer.tracer.grid import make_grid
+from slicer.tracer.slicing import METHODS, slice_skeleton, trace
 from test_ray_unimodal import Ray, check_ray
 
 TOL = 1e-9
@@ -190,7 +190,7 @@ def test_one_and_two_threads_give_identical_bytes(tmp_path):
 def test_png_stack_layout_matches_field_at_voxel_centres(tmp_path):
     """slices.json's origin/pixel_size/layer_height and the row/column
     convention locate every voxel centre: pixel == 255 iff F(centre) >= 1."""
-    from slicer.job import run_slice
+    from slicer.job.run import run_slice
 
     skel = _scene([[0, 0, 0], [2.0, 0.5, 1.5], [0, 0, 0], [-0.5, 1.5, 1.0]], [[0, 1], [2, 3]],
                   [[0.4, 0.2], [0.4, 0.3]])
@@ -279,8 +279,8 @@ def test_weak_members_add_no_cuts_to_their_cluster():
     """cluster_breakpoints skips the t*, t_in and t_out of a member whose bound
     on the ray is below ``weak``, and keeps the others' (sorted, inside the
     cluster)."""
-    from slicer._kernels.rays import cluster_breakpoints
-    from slicer._kernels.raysupport import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT
+    from slicer._kernels.rays.walk import cluster_breakpoints
+    from slicer._kernels.rays.support import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT
 
     hrec = np.zeros((3, NHIT))
     for r, (t_in, t_star, t_out, fmax) in enumerate([(0.0, 1.0, 2.0, 0.9), (0.5, 1.5, 3.0, 0.1),
@@ -329,7 +329,7 @@ def test_thread_order_balances_static_blocks(costs, T):
     """Any static split into T contiguous blocks (as Numba's OpenMP layer
     schedules a prange) gets near-equal shares: no block exceeds the mean by
     more than the largest item; the order is a permutation."""
-    from slicer.buckets import thread_order
+    from slicer.tracer.buckets import thread_order
 
     costs = np.array(costs, dtype=np.int64)
     todo = np.arange(100, 100 + len(costs), dtype=np.int64)
@@ -358,7 +358,7 @@ def test_a_coarse_hermite_estimate_stays_near_the_cubic_root(ga, gb, alpha, beta
     (the full iteration is the reference), inside the bracket. (A cubic
     with three roots may yield another one: any centre is a correct split,
     only the count changes.)"""
-    from slicer._kernels.rays import hermite_point
+    from slicer._kernels.rays.walk import hermite_point
 
     da, db = alpha * (gb - ga) / w, beta * (gb - ga) / w
     ta = 3.0
@@ -375,7 +375,7 @@ def test_buckets_that_fill_their_buffers_resume(monkeypatch, spans, blend):
     one run per ray, the buckets fill their buffers, keep the rays they
     finished and resume at the next one. The runs,
     spans and evaluation count are those of a launch with room to spare."""
-    import slicer.slicing as slicing
+    import slicer.tracer.slicing as slicing
 
     nodes = [[x, 0.1 * (k % 3), 0.45 * k] for k in range(12) for x in (-1.0, 1.0)]
     segs = [[2 * k, 2 * k + 1] for k in range(12)]

@@ -12,11 +12,11 @@ from PIL import Image
 
 from formats import WRITERS
 from slicer import Skeleton
-from slicer.field import evaluate
-from slicer.parts import Part, PartMesh
+from slicer.model.field import evaluate
+from slicer.parts.part import Part, PartMesh
 from slicer.printability import printed_widths
-from slicer.meshes import make_mesh
-from slicer.part_slicing import slice_part, slice_part_planned
+from slicer.parts.meshes import make_mesh
+from slicer.parts.slicing import slice_part, slice_part_planned
 from test_cli_slice import run
 from validation.bulge import node
 

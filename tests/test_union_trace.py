@@ -1,7 +1,7 @@
 """The union blend's tracer against a dense reference: ``max_i f_i`` at every voxel centre.
 
 Every voxel centre must be classified exactly as ``max_i f_i(centre) >= 1``
-in the point evaluation of :func:`slicer.field.evaluate` (``blend="union"``),
+in the point evaluation of :func:`slicer.model.field.evaluate` (``blend="union"``),
 with no tolerance band: both evaluate each strut's own field at the same
 point. Scenes: the tracer's stiff cases, high-valence nodes, random struts
 (hypothesis). With spans, centre k lies in a span exactly when it is inside,
@@ -16,11 +16,11 @@ from hypothesis import strategies as st
 
 from slicer import Skeleton
 from slicer.errors import OptionError
-from slicer.field import evaluate
-from slicer.grid import make_grid
-from slicer.slicing import slice_skeleton, trace
-from slicer.tileplan import plan_slice
-from slicer.tiles import slice_planned
+from slicer.model.field import evaluate
+from slicer.tracer.grid import make_grid
+from slicer.tracer.slicing import slice_skeleton, trace
+from slicer.scale.tileplan import plan_slice
+from slicer.scale.tiles import slice_planned
 from test_trace import CASES
 from validation.bulge import node
 
@@ -164,7 +164,7 @@ def test_struts_meeting_inside_leave_no_gap_between_their_spans():
 def test_span_merge_closes_only_centre_free_gaps_below_the_limit():
     """``merge_spans``: overlapping spans join; a gap narrower than the limit
     joins only when no voxel centre lies in it; wider gaps stay."""
-    from slicer._kernels.union_trace import merge_spans
+    from slicer._kernels.trace.union import merge_spans
     z0, h = 0.0, 0.1
     # spans (0.02, 0.151), (0.1512, 0.3): gap 2e-4 without a centre -> joined
     xs = np.array([0.1512, 0.3, 0.02, 0.151])

@@ -12,7 +12,7 @@ import shapely
 from click.testing import CliRunner
 
 from slicer import Skeleton
-from slicer.cli import main
+from slicer.cli.app import main
 from validation.metrics import compare_layer, hausdorff, polygon_rings, rasterize_rings
 from validation.reference_mesh import reference_mesh, reference_sections
 
@@ -67,7 +67,7 @@ def test_hausdorff_matches_shapely():
 
 def test_metrics_catch_a_wrong_reference():
     from slicer.contours import layer_contours, layer_mask
-    from slicer.slicing import slice_skeleton
+    from slicer.tracer.slicing import slice_skeleton
 
     r = slice_skeleton(FRAME, 0.1)
     k = int(np.argmax([m.sum() for m in r.iter_layers(1)]))
@@ -180,11 +180,11 @@ def test_error_time_routes_end_as_the_outputs_do_on_any_thread_count(method):
     where there is a tolerance), computed here layer by layer, and the same
     with one thread or two (the layers run on the threads)."""
     from sample_lattices import load_sample
-    from slicer._kernels.launch import numba_threads
+    from slicer._kernels.runtime.launch import numba_threads
     from slicer.contours import finish_rings, grid_box, mask_rings
-    from slicer.field import evaluate
-    from slicer.grid import make_grid
-    from slicer.slicing import trace
+    from slicer.model.field import evaluate
+    from slicer.tracer.grid import make_grid
+    from slicer.tracer.slicing import trace
     from validation.error_time import run_config, square_box
     from validation.metrics import polygon_rings
 
@@ -228,7 +228,7 @@ def test_contour_cost_measures_the_slice_commands_grid(tmp_path):
     """``--pixel-size`` gives ``contour_cost`` the grid of ``slice --pixel-size``
     (not the sweep's), and the table and JSON report both jobs on it."""
     from sample_lattices import load_sample
-    from slicer.slicing import slice_skeleton
+    from slicer.tracer.slicing import slice_skeleton
     from validation.contour_cost import main as contour_cost
 
     out = tmp_path / "cost.json"

@@ -14,10 +14,10 @@ from formats.base import StackWriter, write_ordered
 from formats.nanodlp import NanoDlpWriter
 from formats.png_stack import PngStackWriter
 from formats.zip_stack import ZipStackWriter
-from formats.printers import PRINTERS, PrintSettings
+from formats.printer_profiles import PRINTERS, PrintSettings
 from formats.rle import Band, occupied, runs
 from slicer.errors import OutputError
-from slicer.grid import SliceGrid
+from slicer.tracer.grid import SliceGrid
 
 
 def _layers(n=40, h=37, w=53, seed=3):
@@ -200,7 +200,7 @@ def test_map_in_order_keeps_order_and_bounds_the_items_in_flight():
     ``ahead * workers`` submitted ahead of the consumer."""
     import time
 
-    from slicer.inorder import map_in_order
+    from slicer.scale.ordered_map import map_in_order
 
     lock = threading.Lock()
     started, consumed = [], []
@@ -221,7 +221,7 @@ def test_map_in_order_keeps_order_and_bounds_the_items_in_flight():
 
 
 def test_map_in_order_raises_at_the_failing_item_and_stops_early():
-    from slicer.inorder import map_in_order
+    from slicer.scale.ordered_map import map_in_order
 
     calls = []
 
@@ -244,7 +244,7 @@ def test_map_in_order_does_not_wait_for_a_long_item_when_the_consumer_stops():
     closes at once, without waiting for that item, and nothing runs after it."""
     import time
 
-    from slicer.inorder import map_in_order
+    from slicer.scale.ordered_map import map_in_order
 
     release = threading.Event()
     started = []

@@ -25,13 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from sample_lattices import load_sample
-from slicer._kernels.launch import numba_threads
-from slicer.grid import make_grid
-from slicer.layers import write_stack
-from slicer.skeleton import Skeleton
-from slicer.slicing import trace
+from slicer._kernels.runtime.launch import numba_threads
+from slicer.tracer.grid import make_grid
+from slicer.raster.placed_layers import write_stack
+from slicer.model.skeleton import Skeleton
+from slicer.tracer.slicing import trace
 
-from . import machine
+from validation import machine
 
 METHOD_ARGS = {
     "sampling-global": ("sampling", 0),

@@ -26,8 +26,8 @@ import sys
 import numpy as np
 
 from slicer.atomic import write_bytes
-from slicer.field import evaluate
-from slicer.skeleton import Skeleton
+from slicer.model.field import evaluate
+from slicer.model.skeleton import Skeleton
 
 #: unit directions of a 12-valent node (the cuboctahedron's vertices)
 CUBOCTAHEDRON = np.array([[a, b, 0] for a in (-1, 1) for b in (-1, 1)] + [[a, 0, b] for a in (-1, 1) for b in (-1, 1)]

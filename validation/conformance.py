@@ -3,7 +3,7 @@
 The 3MF Consortium publishes files a consumer must accept and files it must
 refuse (``P_...`` / ``MUSTPASS...`` and ``N_...`` / ``MUSTFAIL...``; lib3mf's
 test files mark negatives with ``Negative``, ``_Fail`` or ``MustFail``). Each
-file is read as :func:`slicer.parts.load_part` reads a scene; the outcome is
+file is read as :func:`slicer.parts.part.load_part` reads a scene; the outcome is
 "accepted", "refused" (a :class:`~slicer.errors.SkelsliceError` naming the
 problem) or "crashed" (anything else: a bug). A must-pass file that requires
 an extension skelslice does not print may be refused, by that extension's
@@ -22,7 +22,7 @@ from pathlib import Path
 
 from slicer.atomic import write_bytes
 from slicer.errors import SkelsliceError
-from slicer.parts import load_part
+from slicer.parts.part import load_part
 
 _NEGATIVE = re.compile(r"(^N_|MUSTFAIL|MustFail|Negative|_Fail\b|_Fail\.|MustWarnOrFail)", re.I)
 _POSITIVE = re.compile(r"(^P_|MUSTPASS)", re.I)

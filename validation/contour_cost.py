@@ -15,7 +15,7 @@ of P, trimmed to the model; octet_2x2x2 at 0.1 mm: 113 x 113 px x 113 layers,
 10 of whose planes touch the tops and bottoms of the struts lying in them). Two jobs on that grid:
 
 ``trace``
-    :func:`slicer.slicing.trace` (interval method, buckets of 64 px): the
+    :func:`slicer.tracer.slicing.trace` (interval method, buckets of 64 px): the
     layer rasters. Its count is of primitive evaluations (point and segment
     pairs), as the ``slice`` command reports it.
 ``guaranteed``
@@ -47,13 +47,13 @@ import time
 from pathlib import Path
 
 from sample_lattices import load_sample
-from slicer._kernels.launch import numba_threads
+from slicer._kernels.runtime.launch import numba_threads
 from slicer.contours import each_plane, grid_box, plane_contours
-from slicer.grid import make_grid
-from slicer.slicing import slice_skeleton, trace
+from slicer.tracer.grid import make_grid
+from slicer.tracer.slicing import slice_skeleton, trace
 
-from . import machine
-from .error_time import square_box
+from validation import machine
+from validation.error_time import square_box
 
 #: stage name in the table -> key of the contour statistics
 STAGES = {"cells": "cell_evaluations", "corners": "corner_evaluations", "roots": "root_evaluations",

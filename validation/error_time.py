@@ -10,7 +10,7 @@ sample model into layer contours with
   (:func:`slicer.contours.each_plane`; the adaptive quadtree settled by the field's bounds, every
   feature wider than ``tol``, vertices and chords to ``tol``);
 * ``dense``: the baseline of PySLM's implicit example: the field on the pixel
-  grid of every layer (:func:`slicer.field.evaluate`), marching squares with
+  grid of every layer (:func:`slicer.model.field.evaluate`), marching squares with
   linear interpolation, no root refinement;
 
 sweeping pixel size, layer height, contour tolerance and bucket size one at a
@@ -44,16 +44,16 @@ from pathlib import Path
 import numpy as np
 
 from sample_lattices import load_sample
-from slicer._kernels.launch import numba_threads, serial
+from slicer._kernels.runtime.launch import numba_threads, serial
 from slicer.contours import each_plane, finish_rings, grid_box, layer_mask, mask_rings
-from slicer.field import evaluate
-from slicer.grid import make_grid
-from slicer.inorder import map_in_order
-from slicer.slicing import slice_skeleton, trace
+from slicer.model.field import evaluate
+from slicer.tracer.grid import make_grid
+from slicer.scale.ordered_map import map_in_order
+from slicer.tracer.slicing import slice_skeleton, trace
 
-from . import machine
-from .bench import _warmup
-from .metrics import hausdorff, polygon_rings
+from validation import machine
+from validation.bench import _warmup
+from validation.metrics import hausdorff, polygon_rings
 
 #: reference: pixels across the support box, contour tolerance (mm)
 REF_PIXELS = 1024
@@ -128,7 +128,7 @@ def run_config(skel, cfg: dict, keep: set[int]) -> tuple[float, dict, dict]:
     (:func:`slicer.contours.finish_rings`; vertices a chord skips within
     ``tol / 4`` dropped where there is a tolerance), and the layers' contours
     are computed on the Numba threads at once, one layer per thread
-    (:func:`slicer.inorder.map_in_order`, each layer's kernels serial), as
+    (:func:`slicer.scale.ordered_map.map_in_order`, each layer's kernels serial), as
     :func:`slicer.contours.each_plane` computes the guaranteed contours'
     planes. The tracing itself runs on all the threads.
 

@@ -1,5 +1,5 @@
 """Plain, independent geometry for the references: nothing here comes from
-:mod:`slicer` except the point field evaluation (:func:`slicer.field.evaluate`,
+:mod:`slicer` except the point field evaluation (:func:`slicer.model.field.evaluate`,
 itself checked against the brute-force quadrature of
 :mod:`validation.reference_field`).
 
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from slicer.field import evaluate
+from slicer.model.field import evaluate
 
 
 def bisect(skel, a: np.ndarray, b: np.ndarray, tol: float, fa=None, fb=None):

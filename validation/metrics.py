@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from slicer.field import evaluate
+from slicer.model.field import evaluate
 
-from .independent import plane_distance, project
+from validation.independent import plane_distance, project
 
 
 def polygon_rings(mp) -> list[np.ndarray]:

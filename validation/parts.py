@@ -29,19 +29,19 @@ import manifold3d
 import numpy as np
 import shapely
 
-from slicer.buckets import DEFAULT_BUCKET
-from slicer.checks import resolvable, scene_reach, scene_step
+from slicer.tracer.buckets import DEFAULT_BUCKET
+from slicer.arguments import resolvable, scene_reach, scene_step
 from slicer.contours import layer_mask, part_layer_contours, rings_to_multipolygon
 from slicer.errors import GridError
-from slicer.field import evaluate
-from slicer.mesh_slicing import Sections
-from slicer.part_slicing import slice_part
-from slicer.parts import ROLES
+from slicer.model.field import evaluate
+from slicer.parts.mesh_slicing import Sections
+from slicer.parts.slicing import slice_part
+from slicer.parts.part import ROLES
 
-from .independent import project
-from .metrics import _edge_points, hausdorff, polygon_rings, rasterize_rings
-from .reference_mesh import reference_band
-from .validate import assemble_report, pick_layers
+from validation.independent import project
+from validation.metrics import _edge_points, hausdorff, polygon_rings, rasterize_rings
+from validation.reference_mesh import reference_band
+from validation.validate import assemble_report, pick_layers
 
 #: slack for floating-point noise in distance checks, mm
 SLACK = 1e-9
@@ -130,7 +130,7 @@ def validate_part(part, *, pixel_size: float | None = None, pixels: int = 512, p
     """Slice a part and compare sampled layers with the manifold3d reference.
 
     Parameters and result as :func:`validation.validate.validate` (with
-    ``part`` a :class:`slicer.parts.Part`).
+    ``part`` a :class:`slicer.parts.part.Part`).
     """
     tol = resolvable(tol, "contour tolerance", scene_reach(part), GridError)
     if mesh_edge is not None:                           # before any work

@@ -5,7 +5,7 @@ The part is made here (no data file): a spinal-cage-like solid -- a rounded
 and refined to 5,440 faces -- and a cubic lattice of 1.05 mm cells with
 0.25 mm struts filling both windows (10,968 beams), like the 3MF
 Consortium's "spinal implant" sample (5,672 faces, 11,821 beams). The job is
-the full ``skelslice slice`` job (:func:`slicer.job.run_slice`) onto a
+the full ``skelslice slice`` job (:func:`slicer.job.run.run_slice`) onto a
 printer's plate (default: Prusa SL1S, 0.05 mm pixels and layers).
 
 Reported per run: the job's CPU time (all threads of this process), the CPU
@@ -38,13 +38,13 @@ from pathlib import Path
 import manifold3d
 import numpy as np
 
-from slicer import part_slicing
+from slicer.parts import slicing as part_slicing
 from slicer.atomic import write_bytes
-from slicer.job import run_slice
-from slicer.lattice import generate_lattice
-from slicer.meshes import make_mesh
-from slicer.parts import Part, PartMesh
-from slicer.skeleton import Skeleton
+from slicer.job.run import run_slice
+from slicer.scene.lattice import generate_lattice
+from slicer.parts.meshes import make_mesh
+from slicer.parts.part import Part, PartMesh
+from slicer.model.skeleton import Skeleton
 
 
 def implant_like(scale: float = 1.0) -> Part:

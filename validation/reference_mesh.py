@@ -2,7 +2,7 @@
 sliced with manifold3d.
 
 The field is sampled on a cubic grid with the compiled, bucketed evaluator
-(:func:`slicer.field.evaluate`), one z-plane at a time. Each cube is split into
+(:func:`slicer.model.field.evaluate`), one z-plane at a time. Each cube is split into
 the six Freudenthal (Kuhn) tetrahedra that share its main diagonal, so
 neighbouring cubes agree on their faces and marching tetrahedra gives a closed,
 oriented, watertight mesh. Every mesh vertex sits on a grid edge between an
@@ -34,12 +34,12 @@ from itertools import permutations
 
 import numpy as np
 
-from slicer.checks import positive_number
+from slicer.arguments import positive_number
 from slicer.errors import GridError
-from slicer.field import evaluate
-from slicer.skeleton import Skeleton
+from slicer.model.field import evaluate
+from slicer.model.skeleton import Skeleton
 
-from .independent import assemble, bisect, chain
+from validation.independent import assemble, bisect, chain
 
 # cube corner c = dx + 2 dy + 4 dz
 _CORNER = np.array([[(c >> 0) & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)])

@@ -21,7 +21,7 @@ and a voxel grid. For every case the suite measures:
   mm; the tracer's tolerance ``span_tol`` is reported with it). Roots where
   the reference ``|dF/dz| * tau < 1e-3`` (double roots, columns lying in the
   surface) have no well-defined position: they are counted, not measured.
-* **voxel mismatches** of :func:`slicer.slicing.trace` with each method
+* **voxel mismatches** of :func:`slicer.tracer.slicing.trace` with each method
   (interval, sampling, segment) against the dense field at every voxel centre,
   excluding centres with ``|F - 1| <= 1e-9``; and ``ref_mismatch``: dense
   float64 classification against the reference at every centre with
@@ -51,17 +51,17 @@ from typing import Callable
 
 import numpy as np
 
-from slicer._kernels.launch import numba_threads
+from slicer._kernels.runtime.launch import numba_threads
 from slicer.atomic import write_bytes
 from slicer.errors import SceneError
-from slicer.grid import make_grid
-from slicer.scene_io import load_scene
-from slicer.skeleton import Skeleton
-from slicer.slicing import trace
+from slicer.tracer.grid import make_grid
+from slicer.scene.read import load_scene
+from slicer.model.skeleton import Skeleton
+from slicer.tracer.slicing import trace
 
-from . import machine
-from . import reference_field as ref
-from .bench import _warmup
+from validation import machine
+from validation import reference_field as ref
+from validation.bench import _warmup
 
 #: voxels with |F - 1| at most this are not counted as mismatches (summation order)
 TOL = 1e-9

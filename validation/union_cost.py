@@ -16,7 +16,7 @@ import sys
 
 from sample_lattices import SAMPLES, load_sample
 from slicer.atomic import write_bytes
-from slicer.slicing import slice_skeleton
+from slicer.tracer.slicing import slice_skeleton
 
 
 def cost(name: str, pixels: int = 160, spans: bool = False) -> dict:

@@ -28,18 +28,18 @@ import manifold3d
 import numpy as np
 import shapely
 
-from slicer.buckets import DEFAULT_BUCKET
-from slicer.checks import resolvable, scene_reach, scene_step
+from slicer.tracer.buckets import DEFAULT_BUCKET
+from slicer.arguments import resolvable, scene_reach, scene_step
 from slicer.contours import layer_contours, layer_mask, rings_to_multipolygon
 from slicer.errors import GridError
-from slicer.field import evaluate
-from slicer.skeleton import Skeleton
-from slicer.slicing import slice_skeleton, trace
+from slicer.model.field import evaluate
+from slicer.model.skeleton import Skeleton
+from slicer.tracer.slicing import slice_skeleton, trace
 
-from .independent import plane_distance
-from .metrics import contour_error_bound, hausdorff, polygon_rings, rasterize_rings
-from .reference_mesh import Section, reference_band
-from .validate import assemble_report, default_pitch, pick_layers
+from validation.independent import plane_distance
+from validation.metrics import contour_error_bound, hausdorff, polygon_rings, rasterize_rings
+from validation.reference_mesh import Section, reference_band
+from validation.validate import assemble_report, default_pitch, pick_layers
 
 
 def strut(skel: Skeleton, i: int) -> Skeleton:

@@ -28,15 +28,15 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from slicer.atomic import AtomicDir, check_destination
-from slicer.buckets import DEFAULT_BUCKET
-from slicer.checks import resolvable, scene_reach, scene_step
+from slicer.tracer.buckets import DEFAULT_BUCKET
+from slicer.arguments import resolvable, scene_reach, scene_step
 from slicer.contours import layer_contours, layer_mask
 from slicer.errors import GridError
-from slicer.slicing import slice_skeleton
+from slicer.tracer.slicing import slice_skeleton
 
-from .bench import square_bounds
-from .metrics import compare_layer, contour_error_bound, polygon_rings, rasterize_rings, summarise
-from .reference_mesh import reference_sections
+from validation.bench import square_bounds
+from validation.metrics import compare_layer, contour_error_bound, polygon_rings, rasterize_rings, summarise
+from validation.reference_mesh import reference_sections
 
 #: slack for floating-point noise in distance checks, mm
 SLACK = 1e-9
@@ -84,7 +84,7 @@ def validate(skel, *, pixel_size: float | None = None, pixels: int = 512, pixel_
         (then ``bounds`` is that square box unless given).
     pixels : int
     pixel_size_y, layer_height, bounds, method, bucket, threads, strict
-        As for :func:`slicer.slicing.slice_skeleton`.
+        As for :func:`slicer.tracer.slicing.slice_skeleton`.
     mesh_edge : float, optional, mm
         Reference mesh grid spacing; default half the smallest pixel pitch.
     layers_checked : int

@@ -4,7 +4,7 @@ The package is split by stage:
 
 * :mod:`.cells` -- the guaranteed contours of a layer plane: an adaptive
   quadtree whose cells are settled by sound per-primitive bounds of the field
-  over each cell (:mod:`slicer._kernels.cellbounds`), so that every part of the
+  over each cell (:mod:`slicer._kernels.contours.cellbounds`), so that every part of the
   section wider than the tolerance appears, whatever the pixel size;
 * :mod:`.roots` -- bracketed root solving of ``F = 1`` on segments, distances
   and projections in the layer plane;
@@ -21,7 +21,7 @@ counter-clockwise, holes clockwise. See docs/contours.md.
 Examples
 --------
 >>> from slicer import Skeleton
->>> from slicer.slicing import slice_skeleton
+>>> from slicer.tracer.slicing import slice_skeleton
 >>> s = Skeleton([[0, 0, -5], [0, 0, 5]], [[0, 1]], [[1.0, 1.0]])
 >>> r = slice_skeleton(s, 0.1)
 >>> mp = layer_contours(s, r, r.grid.layers // 2)
@@ -30,13 +30,13 @@ Examples
 """
 from __future__ import annotations
 
-from .cells import check_resolvable, guaranteed_rings
-from .layers import (each_plane, finish_rings, grid_box, iter_contours, iter_part_contours, layer_contours, part_layer_contours, plane_contours,
+from slicer.contours.cells import check_resolvable, guaranteed_rings
+from slicer.contours.layers import (each_plane, finish_rings, grid_box, iter_contours, iter_part_contours, layer_contours, part_layer_contours, plane_contours,
                      write_contours)
-from .marching import layer_mask, mask_rings
-from .rings import rings_to_multipolygon, signed_areas
-from .roots import plane_distance, project_to_contour, solve_crossings
-from .simplify import refine_rings
+from slicer.contours.marching import layer_mask, mask_rings
+from slicer.contours.rings import rings_to_multipolygon, signed_areas
+from slicer.contours.roots import plane_distance, project_to_contour, solve_crossings
+from slicer.contours.simplify import refine_rings
 
 __all__ = ["plane_contours", "finish_rings", "each_plane", "guaranteed_rings", "check_resolvable", "grid_box", "layer_contours", "iter_contours", "iter_part_contours", "part_layer_contours", "layer_mask", "mask_rings",
            "refine_rings", "rings_to_multipolygon", "signed_areas", "solve_crossings", "plane_distance",

@@ -9,7 +9,7 @@ narrower than a quarter of the finest leaves (:meth:`_Bounds.ridge`,
 docs/math.md §10.1) -- or the leaf's diagonal is at most the tolerance. The proofs use
 the field and its gradient at the cell's centre ``c`` and sound bounds over
 the disc of radius ``r`` (half the diagonal) around it
-(:mod:`slicer._kernels.cellbounds`, docs/math.md §10): with ``G`` a bound of
+(:mod:`slicer._kernels.contours.cellbounds`, docs/math.md §10): with ``G`` a bound of
 the in-plane slope ``‖∇_xy F‖`` and ``H`` of the in-plane Hessian's norm over
 the disc,
 
@@ -38,17 +38,17 @@ import math
 
 import numpy as np
 
-from .._kernels.binning import bin_boxes
-from .._kernels.cellbounds import PIECES, SLACK
-from .._kernels.cellstate import IN, ONEDIR, OUT, SIMPLE, SMALL, THIN  # noqa: F401 (the leaf states, re-exported)
-from .._kernels.contours import chain_rings, known_values, leaf_walks, next_in_group, pair_crossings
-from .._kernels.order import DIGIT_BITS
-from .._kernels.quadtree import classify_cells, plane_data, quadtree, ridge_cells
-from ..errors import OptionError
-from ..field import plane_footprints, plane_grid, point_grid, support_boxes
-from ..skeleton import Skeleton
-from .roots import FIELD_SLACK, _field, solve_crossings
-from .simplify import CHORD_FRACTION
+from slicer._kernels.field.binning import bin_boxes
+from slicer._kernels.contours.cellbounds import PIECES, SLACK
+from slicer._kernels.contours.cellstate import IN, ONEDIR, OUT, SIMPLE, SMALL, THIN  # noqa: F401 (the leaf states, re-exported)
+from slicer._kernels.contours.chain import chain_rings, known_values, leaf_walks, next_in_group, pair_crossings
+from slicer._kernels.raster.counting_sort import DIGIT_BITS
+from slicer._kernels.contours.quadtree import classify_cells, plane_data, quadtree, ridge_cells
+from slicer.errors import OptionError
+from slicer.model.field import plane_footprints, plane_grid, point_grid, support_boxes
+from slicer.model.skeleton import Skeleton
+from slicer.contours.roots import FIELD_SLACK, _field, solve_crossings
+from slicer.contours.simplify import CHORD_FRACTION
 
 #: pieces per segment of the cheap disc bounds tried before the full ones
 #: (:meth:`_Bounds.classify`)
@@ -104,7 +104,7 @@ def plane_segments(skel: Skeleton, z: float) -> np.ndarray:
 def _bin_segments(skel: Skeleton, z: float, x0: float, y0: float, side: float, nx: int, ny: int):
     """The segments of the plane ``z`` binned on the root grid (``nx x ny`` squares of
     ``side`` from ``(x0, y0)``), each by its support's footprint in the plane grown by
-    the largest disc a root cell needs (:func:`slicer.field.plane_footprints`), so a
+    the largest disc a root cell needs (:func:`slicer.model.field.plane_footprints`), so a
     square's list holds every segment that can reach a disc of radius ``<= rmax``
     centred in it.
 
@@ -126,7 +126,7 @@ def _bin_segments(skel: Skeleton, z: float, x0: float, y0: float, side: float, n
 
 
 class _Bounds:
-    """One plane's data for the quadtree kernels (:mod:`slicer._kernels.quadtree`):
+    """One plane's data for the quadtree kernels (:mod:`slicer._kernels.contours.quadtree`):
     the segment table, the plane's segments binned on the root grid, its point
     grid, and the settings of the cell tests."""
 
@@ -161,7 +161,7 @@ class _Bounds:
         The full bounds are at least as tight, so the cells the cheap ones
         settle are those the full ones would settle, in the same state; the
         others get the full bounds' state and data
-        (:func:`slicer._kernels.quadtree.classify_at`)."""
+        (:func:`slicer._kernels.contours.quadtree.classify_at`)."""
         f64 = np.ascontiguousarray
         state, out, ev = classify_cells(self.plane, f64(cx, np.float64), f64(cy, np.float64), f64(r, np.float64),
                                         self.settings)
@@ -172,7 +172,7 @@ class _Bounds:
     def ridge(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray, taylor) -> np.ndarray:
         """OUT, THIN or -1 (unresolved) of cells on a crest of the field (docs/math.md §10.1).
 
-        With ``u``, ``v`` the frame of :func:`slicer._kernels.ridgebounds.ridge_bounds` and, over the disc,
+        With ``u``, ``v`` the frame of :func:`slicer._kernels.contours.ridgebounds.ridge_bounds` and, over the disc,
         ``F_vv <= −c < 0``, ``F_uu <= B_uu``, ``|F_uv| <= B_uv``: from any point
         ``p*`` of the disc, ``F <= M = F(p*) + r |F_u(p*)| + r² max(B_uu, 0)/2 +
         (|F_v(p*)| + r B_uv)²/(2c)`` over the disc (Taylor's remainder along
@@ -184,9 +184,9 @@ class _Bounds:
         its ends): at most ``self.thin`` (``THIN_FRACTION`` of the finest leaves'
         side) makes the cell THIN, a leaf walked like the finest ones: what it
         holds is narrower than what their corners reliably see
-        (:func:`slicer._kernels.quadtree.ridge_at`). Before the bounds, the
+        (:func:`slicer._kernels.contours.quadtree.ridge_at`). Before the bounds, the
         gradient at ``c ± 0.999 r v`` may prove ``F_vv > 0`` somewhere in the
-        disc (:func:`slicer._kernels.quadtree.convex_across`): no bound could
+        disc (:func:`slicer._kernels.contours.quadtree.convex_across`): no bound could
         then settle the cell, and none is computed.
 
         Parameters
@@ -219,7 +219,7 @@ def inherit_side(tol: float, s0: float) -> float:
 
 def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int, levels: int):
     """Leaves of the quadtree over ``nx x ny`` root cells of side ``s0``
-    (:func:`slicer._kernels.quadtree.quadtree`, one compiled call).
+    (:func:`slicer._kernels.contours.quadtree.quadtree`, one compiled call).
 
     Root cells get the cheap disc bounds only. Cells no larger than
     :func:`inherit_side` take their parent's disc bounds; larger ones first
@@ -251,14 +251,14 @@ def _quadtree(bounds: _Bounds, x0: float, y0: float, s0: float, nx: int, ny: int
 
 def _known_values(px, py, kx, ky, kf) -> np.ndarray:
     """Field at lattice points ``(px, py)`` where ``(kx, ky)`` holds it (``kf``), NaN elsewhere
-    (:func:`slicer._kernels.contours.known_values`)."""
+    (:func:`slicer._kernels.contours.chain.known_values`)."""
     f = np.ascontiguousarray
     return known_values(f(px, np.int64), f(py, np.int64), f(kx, np.int64), f(ky, np.int64), f(kf, np.float64))
 
 
 def _boundary_walks(X0, Y0, X1, Y1):
     """Counter-clockwise walks over the boundaries of leaves, through every
-    leaf corner lying on them (:func:`slicer._kernels.contours.leaf_walks`).
+    leaf corner lying on them (:func:`slicer._kernels.contours.chain.leaf_walks`).
 
     Returns
     -------
@@ -338,7 +338,7 @@ def _root_grid(skel: Skeleton, ids: np.ndarray, tol: float, root_cell: float | N
 
 def _pair_crossings(leaf, point, inside, npts: int):
     """Sign changes along the leaves' walks, paired exit -> next entry in each leaf
-    (:func:`slicer._kernels.contours.pair_crossings`).
+    (:func:`slicer._kernels.contours.chain.pair_crossings`).
 
     Returns
     -------

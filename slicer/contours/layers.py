@@ -18,7 +18,7 @@ border of the grid's box (half a pixel beyond the last centres).
 Examples
 --------
 >>> from slicer import Skeleton
->>> from slicer.slicing import slice_skeleton
+>>> from slicer.tracer.slicing import slice_skeleton
 >>> s = Skeleton([[0, 0, -5], [0, 0, 5]], [[0, 1]], [[1.0, 1.0]])
 >>> r = slice_skeleton(s, 0.1)
 >>> mp = layer_contours(s, r, r.grid.layers // 2)
@@ -36,20 +36,20 @@ import numpy as np
 import shapely
 import shapely.affinity
 
-from .._kernels.launch import numba_threads, serial
-from ..atomic import AtomicFile, check_destination
-from ..errors import GridError
-from ..inorder import map_in_order
-from ..mesh_slicing import Sections
-from ..part_slicing import PartResult, PartStreamedResult
-from ..parts import ROLES
-from ..skeleton import Skeleton
-from ..slicing import SliceResult
-from .cells import check_resolvable, guaranteed_rings
-from .marching import layer_mask
-from .rings import _polygons_only, rings_to_multipolygon
-from .roots import _check_tol
-from .simplify import SIMPLIFY_FRACTION, _keep_simple, refine_rings, simplify
+from slicer._kernels.runtime.launch import numba_threads, serial
+from slicer.atomic import AtomicFile, check_destination
+from slicer.errors import GridError
+from slicer.scale.ordered_map import map_in_order
+from slicer.parts.mesh_slicing import Sections
+from slicer.parts.slicing import PartResult, PartStreamedResult
+from slicer.parts.part import ROLES
+from slicer.model.skeleton import Skeleton
+from slicer.tracer.slicing import SliceResult
+from slicer.contours.cells import check_resolvable, guaranteed_rings
+from slicer.contours.marching import layer_mask
+from slicer.contours.rings import _polygons_only, rings_to_multipolygon
+from slicer.contours.roots import _check_tol
+from slicer.contours.simplify import SIMPLIFY_FRACTION, _keep_simple, refine_rings, simplify
 
 
 def grid_box(grid):
@@ -156,7 +156,7 @@ def each_plane(skel: Skeleton, zs, tol: float, box=None, stats: dict | None = No
     """``(z, plane_contours(skel, z, tol, box))`` for each plane of ``zs``, in order.
 
     Planes are independent: with ``workers > 1`` they are computed on that
-    many threads (:func:`slicer.inorder.map_in_order`), each plane's kernels
+    many threads (:func:`slicer.scale.ordered_map.map_in_order`), each plane's kernels
     on one thread; the contours and ``stats`` are those of a serial run.
 
     Parameters
@@ -203,10 +203,10 @@ def iter_contours(skel: Skeleton, result: SliceResult, tol: float = 1e-3,
     stats : dict, optional
         Filled with totals (``evaluations``, ``vertices``, ``refined``,
         ``unbracketed``).
-    placement : formats.printers.Placement, optional
+    placement : formats.printer_profiles.Placement, optional
         Put the contours on a printer's plate, as the images are: only the
         placed layers (``k_first`` on), numbered from 0, translated by
-        :meth:`~formats.printers.Placement.offset` (plate mm, z of plate
+        :meth:`~formats.printer_profiles.Placement.offset` (plate mm, z of plate
         layer centres).
     workers : int, optional
         Threads computing layer planes at once (:func:`each_plane`; default:
@@ -258,7 +258,7 @@ def _with_sections(geom, sections: dict, z: float):
 
 
 def part_layer_contours(result, k: int, tol: float = 1e-3):
-    """Contours of layer ``k`` of a sliced part (:class:`slicer.part_slicing.PartResult`):
+    """Contours of layer ``k`` of a sliced part (:class:`slicer.parts.slicing.PartResult`):
     a valid MultiPolygon, mm, as :func:`layer_contours` gives for a lattice."""
     tol = _check_tol(tol)
     k = int(k)
@@ -273,11 +273,11 @@ def part_layer_contours(result, k: int, tol: float = 1e-3):
 
 def iter_part_contours(result, tol: float = 1e-3, stats: dict | None = None,
                        placement=None, workers: int | None = None) -> Iterator[tuple[int, float, object]]:
-    """Contours of a sliced part (:mod:`slicer.part_slicing`), every layer, bottom first.
+    """Contours of a sliced part (:mod:`slicer.parts.slicing`), every layer, bottom first.
 
     Each layer's lattice contours (the guaranteed contours of the lattice's
     skeleton, clipped to the lattice's own grid) are combined with the meshes' exact cross-sections
-    (:class:`slicer.mesh_slicing.Sections`) by polygon booleans:
+    (:class:`slicer.parts.mesh_slicing.Sections`) by polygon booleans:
     ``((lattice ∩ CI) − CO) ∪ S``. Arguments and conventions as
     :func:`iter_contours`.
     """

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._kernels.contours import chain_rings
-from ..errors import GridError
-from ..skeleton import Skeleton
-from ..slicing import SliceResult
-from .roots import _field, solve_crossings
-from .simplify import _keep_simple, refine_rings
+from slicer._kernels.contours.chain import chain_rings
+from slicer.errors import GridError
+from slicer.model.skeleton import Skeleton
+from slicer.tracer.slicing import SliceResult
+from slicer.contours.roots import _field, solve_crossings
+from slicer.contours.simplify import _keep_simple, refine_rings
 
 # Cell corners TL, TR, BR, BL (bits 1, 2, 4, 8) and edges T, R, B, L (0..3),
 # seen from above with +y up. Walking the corners counter-clockwise,

@@ -5,7 +5,7 @@ import numpy as np
 import shapely
 from shapely.geometry.polygon import orient
 
-from .._kernels.contours import ring_areas
+from slicer._kernels.contours.chain import ring_areas
 
 
 def signed_areas(rings: list[np.ndarray]) -> np.ndarray:

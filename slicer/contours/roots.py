@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._kernels.crossings import MAX_ITER, distances, project_points, solve_segments
-from .._kernels.launch import serial
-from ..checks import positive_number
-from ..errors import GridError
-from ..field import PointGrid, evaluate, plane_field, plane_grid, point_grid
-from ..skeleton import Skeleton
+from slicer._kernels.contours.crossings import MAX_ITER, distances, project_points, solve_segments
+from slicer._kernels.runtime.launch import serial
+from slicer.arguments import positive_number
+from slicer.errors import GridError
+from slicer.model.field import PointGrid, evaluate, plane_field, plane_grid, point_grid
+from slicer.model.skeleton import Skeleton
 
 #: relative error budget of one closed-form field evaluation (docs/math.md §2.6
 #: and the stiff-case suite: ~1e-13)
@@ -22,9 +22,9 @@ SERIAL_BATCH = 4096
 
 
 def _field(skel: Skeleton, points: np.ndarray, gradient: bool = False):
-    """:func:`slicer.field.evaluate`, serial for small batches (same values);
+    """:func:`slicer.model.field.evaluate`, serial for small batches (same values);
     points of one layer plane go through that plane's support grid
-    (:func:`slicer.field.plane_field`, the same values)."""
+    (:func:`slicer.model.field.plane_field`, the same values)."""
     kern = evaluate
     if points.shape[0] and np.all(points[:, 2] == points[0, 2]):
         kern = plane_field
@@ -37,7 +37,7 @@ def _field(skel: Skeleton, points: np.ndarray, gradient: bool = False):
 
 def field_tuple(skel: Skeleton, z: float | None = None) -> tuple:
     """The field as the compiled root solvers take it
-    (:mod:`slicer._kernels.crossings`): the segment table with the support
+    (:mod:`slicer._kernels.contours.crossings`): the segment table with the support
     grid of the plane ``z`` (None: of the whole skeleton; the values are the
     same to the bit), half the kernel degree, ``1/σ²`` and the normalisation."""
     if skel.n_segments == 0:      # no segment: F = 0 everywhere
@@ -81,7 +81,7 @@ def solve_crossings(skel: Skeleton, a: np.ndarray, b: np.ndarray, tol: float,
     long, its midpoint is the answer, within ``tol/2`` of the root (no
     evaluation at all where the values at the ends already prove it). The
     segments are solved one after another in compiled code
-    (:func:`slicer._kernels.crossings.solve_segments`).
+    (:func:`slicer._kernels.contours.crossings.solve_segments`).
 
     Parameters
     ----------

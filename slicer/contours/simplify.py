@@ -6,10 +6,10 @@ import numpy as np
 import shapely
 from shapely.geometry.polygon import orient
 
-from .._kernels.refine import refine_chords
-from ..skeleton import Skeleton
-from .rings import as_linearrings
-from .roots import FIELD_SLACK, field_tuple
+from slicer._kernels.contours.refine import refine_chords
+from slicer.model.skeleton import Skeleton
+from slicer.contours.rings import as_linearrings
+from slicer.contours.roots import FIELD_SLACK, field_tuple
 
 
 #: chords are split until their midpoint is within this fraction of ``tol``
@@ -30,7 +30,7 @@ def refine_rings(skel: Skeleton, rings: list[np.ndarray], z: float, tol: float,
     (:func:`slicer.contours.roots.project_to_contour`, at most a quarter of the
     chord away, so rings stay simple); a point whose root cannot be bracketed
     is dropped. One compiled call does every round
-    (:func:`slicer._kernels.refine.refine_chords`).
+    (:func:`slicer._kernels.contours.refine.refine_chords`).
 
     Parameters
     ----------

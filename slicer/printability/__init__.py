@@ -13,12 +13,12 @@ layers (:func:`model_layers`) or an output read back
 """
 from __future__ import annotations
 
-from .areas import AreaStats, estimate
-from .islands import Island, IslandFinder
-from .report import DEFAULT_FAIL_ON, KINDS, CheckOptions, CheckReport, check_stack
-from .stream import SOLID, LayerStack, model_layers, read_layers
-from .thin import ThinSegment, printed_widths, thin_segments
-from .traps import Trap, TrapFinder
+from slicer.printability.areas import AreaStats, estimate
+from slicer.printability.islands import Island, IslandFinder
+from slicer.printability.report import DEFAULT_FAIL_ON, KINDS, CheckOptions, CheckReport, check_stack
+from slicer.printability.stream import SOLID, LayerStack, model_layers, read_layers
+from slicer.printability.thin import ThinSegment, printed_widths, thin_segments
+from slicer.printability.traps import Trap, TrapFinder
 
 __all__ = ["LayerStack", "model_layers", "read_layers", "SOLID", "check_stack", "CheckOptions", "CheckReport", "KINDS",
            "DEFAULT_FAIL_ON", "Island", "IslandFinder", "Trap", "TrapFinder", "ThinSegment", "printed_widths",

@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from formats.estimate import AREA_FILL, print_estimate
-from formats.printers import PrintSettings
+from formats.printer_profiles import PrintSettings
 
-from ..grid import SliceGrid
-from .stream import rounded
+from slicer.tracer.grid import SliceGrid
+from slicer.printability.stream import rounded
 
 #: layer-to-layer jumps listed in a report
 TOP_JUMPS = 5
@@ -73,7 +73,7 @@ def estimate(grid: SliceGrid, grey: list, settings: PrintSettings | None, area: 
 
     Counted from the lowest layer with a solid pixel to the highest (the
     printed layers). Without settings the defaults of
-    :class:`formats.printers.PrintSettings` are used (and ``assumed`` is True).
+    :class:`formats.printer_profiles.PrintSettings` are used (and ``assumed`` is True).
 
     Parameters
     ----------

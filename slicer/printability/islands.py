@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._kernels.labels import held_regions, label_layer, region_stats
-from ..grid import SliceGrid
-from .stream import rounded
+from slicer._kernels.raster.labels import held_regions, label_layer, region_stats
+from slicer.tracer.grid import SliceGrid
+from slicer.printability.stream import rounded
 
 
 @dataclass(frozen=True)

@@ -13,14 +13,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..atomic import write_bytes
-from ..checks import choice, number
-from ..errors import OptionError
-from .areas import AreaStats, estimate
-from .islands import Island, IslandFinder
-from .stream import SOLID, LayerStack
-from .thin import ThinSegment, thin_segments
-from .traps import Trap, TrapFinder
+from slicer.atomic import write_bytes
+from slicer.arguments import choice, number
+from slicer.errors import OptionError
+from slicer.printability.areas import AreaStats, estimate
+from slicer.printability.islands import Island, IslandFinder
+from slicer.printability.stream import SOLID, LayerStack
+from slicer.printability.thin import ThinSegment, thin_segments
+from slicer.printability.traps import Trap, TrapFinder
 
 #: finding kinds that ``--fail-on`` may name
 KINDS = ("islands", "thin", "traps", "jumps")

@@ -5,7 +5,7 @@ first) with the grid that places its pixels. It comes from a traced result
 (:func:`model_layers`: the images the writers would write, cropped to the
 model's window) or from an output read back (:mod:`formats.readback`).
 Solid means grey >= 128: with anti-aliasing that is coverage >= 1/2
-(:mod:`slicer.antialias`), without it every inside pixel (255).
+(:mod:`slicer.raster.antialias`), without it every inside pixel (255).
 """
 from __future__ import annotations
 
@@ -14,13 +14,13 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from formats.printers import Printer, PrintSettings, place
+from formats.printer_profiles import Printer, PrintSettings, place
 from formats.readback import open_stack
 
-from ..antialias import box_filter, grey_from_coverage, iter_sub_coverage, output_layers, paste
-from ..grid import SliceGrid
+from slicer.raster.antialias import box_filter, grey_from_coverage, iter_sub_coverage, output_layers, paste
+from slicer.tracer.grid import SliceGrid
 
-#: grey level from which a pixel counts as solid (50 % coverage, see slicer.antialias)
+#: grey level from which a pixel counts as solid (50 % coverage, see slicer.raster.antialias)
 SOLID = 128
 #: outputs with larger images are cut to the box of their solid pixels (one extra pass)
 CROP_PIXELS = 4_000_000
@@ -44,8 +44,8 @@ class LayerStack:
     layers : iterable of (grid.height, grid.width) uint8
         Bottom layer first; iterate once.
     frame : {"scene", "plate"}
-    printer : formats.printers.Printer or None
-    settings : formats.printers.PrintSettings or None
+    printer : formats.printer_profiles.Printer or None
+    settings : formats.printer_profiles.PrintSettings or None
         Exposure settings when known (printer jobs, printer archives).
     offset : (3,) float, mm
         Translation from scene to this stack's coordinates (zero in the
@@ -91,14 +91,14 @@ class LayerStack:
 def model_layers(result, settings: PrintSettings | None, source: str = "") -> LayerStack:
     """The output layers of a traced result, cropped to the model's window.
 
-    The images are those the writers write (:func:`slicer.antialias.output_layers`):
+    The images are those the writers write (:func:`slicer.raster.antialias.output_layers`):
     the traced grid's own layers without a printer (anti-aliased when asked),
     the printer's plate images with one, but only the window of the plate
     the model covers, so memory is O(model footprint) whatever the plate.
 
     Parameters
     ----------
-    result : SliceResult or slicer.tiles.StreamedResult
+    result : SliceResult or slicer.scale.tiles.StreamedResult
     settings : PrintSettings or None
         As resolved for the job (``ResolvedJob.settings``).
     source : str

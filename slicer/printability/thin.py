@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..field import evaluate
-from ..skeleton import Skeleton
-from .stream import rounded
+from slicer.model.field import evaluate
+from slicer.model.skeleton import Skeleton
+from slicer.printability.stream import rounded
 
 #: perpendicular directions per axis point (pairs make diameters)
 DIRECTIONS = 12
@@ -79,7 +79,7 @@ def printed_widths(skel: Skeleton, segments: np.ndarray | None = None, blend: st
     segments : (s,) int64, optional
         Which segments (default: all).
     blend : {"sum", "union"}
-        The field the solid is (:mod:`slicer.blend`).
+        The field the solid is (:mod:`slicer.model.blend`).
 
     Returns
     -------
@@ -169,7 +169,7 @@ def thin_segments(skel: Skeleton, threshold: float, offset=(0.0, 0.0, 0.0), laye
     layer_of : callable, optional
         Height (stack mm) to layer index.
     blend : {"sum", "union"}
-        The field the solid is (:mod:`slicer.blend`).
+        The field the solid is (:mod:`slicer.model.blend`).
 
     Returns
     -------

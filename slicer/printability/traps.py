@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._kernels.labels import label_layer, link_layers, region_stats
-from ..grid import SliceGrid
-from .stream import rounded
+from slicer._kernels.raster.labels import label_layer, link_layers, region_stats
+from slicer.tracer.grid import SliceGrid
+from slicer.printability.stream import rounded
 
 #: bookkeeping columns of a component: voxels, sum i, sum j, sum k, i0, j0, k0, i1, j1, k1, open, plate
 _N, _SI, _SJ, _SK, _I0, _J0, _K0, _I1, _J1, _K1, _OPEN, _PLATE = range(12)

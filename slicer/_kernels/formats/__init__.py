@@ -1,0 +1,1 @@
+"""Compiled helpers of the output formats: GOO run-length decoding, NanoDLP island statistics."""

@@ -1,0 +1,1 @@
+"""Raster layers: exact pixel coverage of polygons, connected components, counting sorts."""

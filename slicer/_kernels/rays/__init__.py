@@ -1,0 +1,1 @@
+"""What the tracer and the renderer share: ray versus support, the walk's steps, lazy split points."""

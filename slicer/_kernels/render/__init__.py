@@ -1,0 +1,1 @@
+"""The transparent renderer: every crossing of every camera ray, and their compositing."""

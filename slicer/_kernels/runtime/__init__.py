@@ -1,0 +1,1 @@
+"""Launching compiled kernels: thread counts, resumable launches and borrowed array views."""

@@ -1,0 +1,1 @@
+"""Transparent rendering: every crossing of every camera ray, parts included, and its outputs."""

@@ -1,0 +1,1 @@
+"""The layer viewer: one self-contained HTML page."""
