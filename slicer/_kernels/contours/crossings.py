@@ -74,9 +74,9 @@ def solve_one(fld, a, d, fab, slope, tol, slack, scratch):
         tm, state = bracket_next(state, tol_t, it)
         f = field_of(fld, a[0] + tm * d[0], a[1] + tm * d[1], a[2] + tm * d[2], False, scratch)[0]
         state, open_ = bracket_narrow(state, tm, f, reach_t, length, tol, slack)
-    t = state[9]
+    lo, hi, _, _, _, _, _, _, _, t = state      # docs: slicer._kernels.contours.brackets
     if open_:   # pragma: no cover - the bisection safeguard makes this unreachable
-        t = 0.5 * (state[0] + state[1])
+        t = 0.5 * (lo + hi)
     return t, bracketed, it
 
 

@@ -20,6 +20,7 @@ parents' data travel as arrays indexed by cell.
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import prange
@@ -37,6 +38,23 @@ from slicer._kernels.contours.ridgebounds import FRAME_WORK, _frame_along, _near
 
 #: cells per task of a level's ``prange`` (each task owns one field scratch array)
 CHUNK = 64
+
+#: a plane's constants (:func:`plane_data`): the root grid of its segment bins (``x0, y0`` mm, square ``side``
+#: mm, ``nx`` by ``ny`` squares, discs up to radius ``rmax`` mm), the plane's height ``z`` (mm), the kernel's
+#: degree ``n``, support factor ``sigma`` and normalisation ``norm``, its slope and curvature bounds ``k1`` and
+#: ``k2`` (:func:`slicer._kernels.rays.support.kprime_max`,
+#: :func:`slicer._kernels.contours.cellbounds.kernel_curvature_max`) and ``inv_s2 = 1/sigma^2``
+PlaneConstants = namedtuple("PlaneConstants", ["x0", "y0", "side", "nx", "ny", "rmax", "z", "n", "sigma", "norm",
+                                               "k1", "k2", "inv_s2"])
+
+#: how cells are judged: the contour tolerance ``tol`` and the thinnest feature ``thin`` (mm), the disc
+#: bounds' pieces (``pieces``, ``coarse``) and the relative slacks of the field and of the bounds
+CellSettings = namedtuple("CellSettings", ["tol", "thin", "pieces", "coarse", "fslack", "bslack"])
+
+# rows of a level's Taylor data, one column per cell: centre, field, gradient, the disc bounds G, H, U (the
+# parents' data of the next level), then the field at the four corners (NaN where not evaluated)
+T_CX, T_CY, T_F, T_GX, T_GY, T_G, T_H, T_U, T_CORNERS = range(9)
+T_ROWS = T_CORNERS + 4
 
 
 def plane_data(seg, bins, ids, pgrid, z, n, sigma, norm):
@@ -64,8 +82,8 @@ def plane_data(seg, bins, ids, pgrid, z, n, sigma, norm):
     n, sigma, norm = int(n), float(sigma), float(norm)
     arrays = (seg, np.ascontiguousarray(offsets, np.int64), np.ascontiguousarray(lists, np.int64),
               np.ascontiguousarray(ids, np.int64), po, pi, porig, pcell, pdims)
-    consts = (float(x0), float(y0), float(side), int(nx), int(ny), float(rmax), float(z), n, sigma, norm,
-              kprime_max(n, sigma, norm), kernel_curvature_max(n, sigma, norm), 1.0 / sigma**2)
+    consts = PlaneConstants(float(x0), float(y0), float(side), int(nx), int(ny), float(rmax), float(z), n, sigma,
+                            norm, kprime_max(n, sigma, norm), kernel_curvature_max(n, sigma, norm), 1.0 / sigma**2)
     return arrays, consts
 
 
@@ -81,7 +99,9 @@ def cell_scratch(pieces, coarse):
 @inline_kernel
 def _bin_of(plane, cx, cy, r):
     """``(list, a, b)``: the segments that can reach the disc, ``list[a:b]``."""
-    (_, offsets, lists, ids, _, _, _, _, _), (x0, y0, side, nx, ny, rmax) = plane[0], plane[1][:6]
+    _, offsets, lists, ids, _, _, _, _, _ = plane[0]
+    c = plane[1]
+    x0, y0, side, nx, ny, rmax = c.x0, c.y0, c.side, c.nx, c.ny, c.rmax
     if cx >= x0 and cx < x0 + nx * side and cy >= y0 and cy < y0 + ny * side and r <= rmax:
         c = square_of(cx, cy, x0, y0, side, nx, ny)
         return lists, offsets[c], offsets[c + 1]
@@ -93,8 +113,10 @@ def disc_at(plane, cx, cy, r, pieces, scratch):
     """``G, H, U`` of one disc (:func:`slicer._kernels.contours.cellbounds.disc_bounds`);
     ``scratch`` (:func:`cell_scratch`) lends its disc work area."""
     lst, a, b = _bin_of(plane, cx, cy, r)
-    z, n, sigma, norm, k1, k2 = plane[1][6:12]
-    return _disc(plane[0][0], lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, scratch[SCRATCH:])
+    c = plane[1]
+    z, n, sigma, norm, k1, k2 = c.z, c.n, c.sigma, c.norm, c.k1, c.k2
+    seg, _, _, _, _, _, _, _, _ = plane[0]
+    return _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, scratch[SCRATCH:])
 
 
 @inline_kernel
@@ -102,7 +124,8 @@ def axis_at(plane, cx, cy, r):
     """``ux, uy``: the frame of one disc's crest bounds, the in-plane direction
     of the axis nearest its centre (:func:`slicer._kernels.contours.ridgebounds._nearest_axis`)."""
     lst, a, b = _bin_of(plane, cx, cy, r)
-    return _nearest_axis(plane[0][0], lst, a, b, cx, cy, plane[1][6], r, plane[1][8])
+    seg, _, _, _, _, _, _, _, _ = plane[0]
+    return _nearest_axis(seg, lst, a, b, cx, cy, plane[1].z, r, plane[1].sigma)
 
 
 @inline_kernel
@@ -111,8 +134,10 @@ def frame_at(plane, cx, cy, r, ux, uy, scratch):
     :func:`slicer._kernels.contours.ridgebounds.ridge_bounds`); ``scratch``
     (:func:`cell_scratch`) lends its disc work area."""
     lst, a, b = _bin_of(plane, cx, cy, r)
-    z, n, sigma, norm, k1 = plane[1][6:11]
-    return _frame_along(plane[0][0], lst, a, b, cx, cy, z, r, ux, uy, n, sigma, norm, k1, scratch[SCRATCH:])
+    c = plane[1]
+    z, n, sigma, norm, k1 = c.z, c.n, c.sigma, c.norm, c.k1
+    seg, _, _, _, _, _, _, _, _ = plane[0]
+    return _frame_along(seg, lst, a, b, cx, cy, z, r, ux, uy, n, sigma, norm, k1, scratch[SCRATCH:])
 
 
 @inline_kernel
@@ -149,7 +174,8 @@ def convex_across(plane, cx, cy, r, ux, uy, gx0, gy0, G, fslack, scratch):
 def field_at(plane, x, y, scratch):
     """Field and in-plane gradient ``(f, gx, gy)`` at ``(x, y, z)``."""
     seg, _, _, _, po, pi, porig, pcell, pdims = plane[0]
-    z, n, norm, inv_s2 = plane[1][6], plane[1][7], plane[1][9], plane[1][12]
+    c = plane[1]
+    z, n, norm, inv_s2 = c.z, c.n, c.norm, c.inv_s2
     f, gx, gy, _ = point_field(seg, po, pi, porig, pcell, pdims, n // 2, inv_s2, norm, True, scratch, x, y, z)
     return f, gx, gy
 
@@ -158,7 +184,8 @@ def field_at(plane, x, y, scratch):
 def value_at(plane, x, y, scratch):
     """Field at ``(x, y, z)`` (no gradient)."""
     seg, _, _, _, po, pi, porig, pcell, pdims = plane[0]
-    z, n, norm, inv_s2 = plane[1][6], plane[1][7], plane[1][9], plane[1][12]
+    c = plane[1]
+    z, n, norm, inv_s2 = c.z, c.n, c.norm, c.inv_s2
     return point_field(seg, po, pi, porig, pcell, pdims, n // 2, inv_s2, norm, False, scratch, x, y, z)[0]
 
 
@@ -199,7 +226,7 @@ def ridge_at(plane, cx, cy, r, f0, gx0, gy0, G, thin2, fslack, scratch):
     -------
     state, evaluations
     """
-    if plane[1][7] < 4:     # degree 2: no second-derivative bound (ridge_bounds), no crest cell
+    if plane[1].n < 4:     # degree 2: no second-derivative bound (ridge_bounds), no crest cell
         return -1, 0
     ux, uy = axis_at(plane, cx, cy, r)
     convex, ev = convex_across(plane, cx, cy, r, ux, uy, gx0, gy0, G, fslack, scratch)
@@ -282,7 +309,7 @@ def _cell(plane, cx, cy, rr, box, k, kind, parents, crests, settings, scratch):
     if pcx.shape[0] == 0:
         # int(): a constant argument is a type of its own to Numba (one more compiled copy)
         return _classified(plane, cx, cy, rr, box, int(CHEAP), 0.0, 0.0, 0.0, crests, settings, scratch)
-    st = settle_one(pf[k], pgx[k], pgy[k], pG[k], pH[k], rr, cx - pcx[k], cy - pcy[k], settings[4])
+    st = settle_one(pf[k], pgx[k], pgy[k], pG[k], pH[k], rr, cx - pcx[k], cy - pcy[k], settings.fslack)
     if st >= 0:
         return st, np.inf, 0.0, 0.0, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0, (np.nan, np.nan, np.nan, np.nan)
     return _classified(plane, cx, cy, rr, box, kind, pG[k], pH[k], pU[k], crests, settings, scratch)
@@ -309,7 +336,8 @@ def _classified(plane, cx, cy, rr, box, kind, G, H, U, crests, settings, scratch
     st, kp, ax, ay, f, gx, gy, G, H, U, ev = classify_at(plane, cx, cy, rr, kind, G, H, U, tol, pieces, coarse,
                                                            fslack, scratch)
     corners = (np.nan, np.nan, np.nan, np.nan)
-    if st < 0 and corner_candidate(f, gx, gy, G, H, rr, box[4], fslack):
+    side = box[4]
+    if st < 0 and corner_candidate(f, gx, gy, G, H, rr, side, fslack):
         st, corners = corner_test(plane, box, gx, gy, G, H, rr, fslack, scratch)
         ev += 4
     if crests and st < 0 and crest_candidate(f, gx, gy, G, H, rr, thin, fslack, bslack):
@@ -351,7 +379,7 @@ def _level_cells(plane, level, parents, settings, out, j0, j1):
     """Cells ``j0:j1`` of :func:`quadtree_level` into ``out = (state, kappa,
     sx, sy, taylor, evaluations)``, ``level = (ix, iy, x0, y0, s, rr, kind,
     crests)``, with one work array (:func:`cell_scratch`)."""
-    _cells_into(plane, level, parents, settings, out, j0, j1, np.empty(cell_scratch(settings[2], settings[3])))
+    _cells_into(plane, level, parents, settings, out, j0, j1, np.empty(cell_scratch(settings.pieces, settings.coarse)))
 
 
 @unrefcounted_kernel
@@ -368,9 +396,9 @@ def _cells_into(plane, level, parents, settings, out, j0, j1, scratch):
         st, kp, ax, ay, f, gx, gy, G, H, U, ev, cv = _cell(plane, cx, cy, rr, box, j // 4, kind, parents, crests,
                                                            settings, scratch)
         state[j], kappa[j], sx[j], sy[j], evals[j] = st, kp, ax, ay, ev
-        tay[0, j], tay[1, j], tay[2, j], tay[3, j] = cx, cy, f, gx
-        tay[4, j], tay[5, j], tay[6, j], tay[7, j] = gy, G, H, U
-        tay[8, j], tay[9, j], tay[10, j], tay[11, j] = cv
+        tay[T_CX, j], tay[T_CY, j], tay[T_F, j], tay[T_GX, j] = cx, cy, f, gx
+        tay[T_GY, j], tay[T_G, j], tay[T_H, j], tay[T_U, j] = gy, G, H, U
+        tay[T_CORNERS, j], tay[T_CORNERS + 1, j], tay[T_CORNERS + 2, j], tay[T_CORNERS + 3, j] = cv
 
 
 @parallel_kernel
@@ -402,7 +430,7 @@ def quadtree_level(plane, ix, iy, x0, y0, s, rr, kind, parents, crests, settings
     """
     nc = ix.shape[0]
     state, kappa, sx, sy = np.empty(nc, np.int8), np.empty(nc), np.empty(nc), np.empty(nc)
-    tay, evals = np.empty((12, nc)), np.zeros(nc, np.int64)
+    tay, evals = np.empty((T_ROWS, nc)), np.zeros(nc, np.int64)
     # a parfor cannot take a tuple of arrays: the tuples are rebuilt in each task
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = plane[0]
     consts = plane[1]
@@ -458,7 +486,7 @@ def _gather(ix, iy, lev, levels, level, leaves, nl, known, nk):
             state[j] = SMALL
         if state[j] < 0:
             nsplit += 1
-        if tay[8, j] == tay[8, j]:
+        if tay[T_CORNERS, j] == tay[T_CORNERS, j]:
             ncorner += 1
     LX, LY, LS, LST, LK, LSX, LSY = leaves
     LX, LY, LS, LST = _grow(LX, nl + nc), _grow(LY, nl + nc), _grow(LS, nl + nc), _grow(LST, nl + nc)
@@ -468,7 +496,7 @@ def _gather(ix, iy, lev, levels, level, leaves, nl, known, nk):
     KX, KY, KF = _grow(KX, need), _grow(KY, need), _grow(KF, need)
     nix = np.empty(4 * nsplit, np.int64)
     niy = np.empty(4 * nsplit, np.int64)
-    par = np.empty((8, nsplit))
+    par = np.empty((T_CORNERS, nsplit))
     q = 0
     for j in range(nc):
         if state[j] >= 0:
@@ -477,21 +505,21 @@ def _gather(ix, iy, lev, levels, level, leaves, nl, known, nk):
             nl += 1
             continue
         if unit >= 2:
-            KX[nk], KY[nk], KF[nk] = ix[j] * unit + unit // 2, iy[j] * unit + unit // 2, tay[2, j]
+            KX[nk], KY[nk], KF[nk] = ix[j] * unit + unit // 2, iy[j] * unit + unit // 2, tay[T_F, j]
             nk += 1
-        par[:, q] = tay[:8, j]
+        par[:, q] = tay[:T_CORNERS, j]
         for c in range(4):
             nix[4 * q + c] = 2 * ix[j] + (c & 1)
             niy[4 * q + c] = 2 * iy[j] + (c >> 1)
         q += 1
     for j in range(nc):
-        if tay[8, j] == tay[8, j]:
+        if tay[T_CORNERS, j] == tay[T_CORNERS, j]:
             for c in range(4):          # counter-clockwise from (ix, iy), as corner_test evaluated them
                 KX[nk] = (ix[j] + (1 if c == 1 or c == 2 else 0)) * unit
                 KY[nk] = (iy[j] + (c >> 1)) * unit
-                KF[nk] = tay[8 + c, j]
+                KF[nk] = tay[T_CORNERS + c, j]
                 nk += 1
-    parents = (par[0], par[1], par[2], par[3], par[4], par[5], par[6], par[7])
+    parents = (par[T_CX], par[T_CY], par[T_F], par[T_GX], par[T_GY], par[T_G], par[T_H], par[T_U])
     return nix, niy, parents, (LX, LY, LS, LST, LK, LSX, LSY), nl, (KX, KY, KF), nk
 
 

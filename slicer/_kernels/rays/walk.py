@@ -225,10 +225,10 @@ def eval_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, cach
         Primitive evaluations done.
     """
     ct, cf, cfp = cache
-    if kp[0] == 3 and ns >= LANES_FROM:
+    m, inv_s2, norm = kp
+    if m == 3 and ns >= LANES_FROM:
         return eval_lanes_along(seg, hprim, hrec, sarr, ns, ray, t, kp, scratch, F, FP, row, ct, cf, cfp)
     ox, oy, oz, dx, dy, dz = ray
-    m, inv_s2, norm = kp
     px = ox + t * dx
     py = oy + t * dy
     pz = oz + t * dz

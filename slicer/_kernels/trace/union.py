@@ -34,6 +34,7 @@ The launch interface of :func:`trace_union_buckets` is that of
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import prange
@@ -54,6 +55,13 @@ DEEP = 96
 C_RUN, C_X, C_EV = range(3)
 # float state of a strut walk: current point t, f, f'; then the ray's px, py
 W_T, W_F, W_D, W_PX, W_PY = range(5)
+
+#: what every strut walk of a bucket needs of the grid and the options: the first centre's height ``z0``
+#: and the layer height ``h`` (mm), the traced range ``zlo..zhi`` (mm), ``span_tol`` (mm), ``inv_s2``
+#: (1/sigma^2, mm^-2), the kernel's normalisation ``norm``, the centres per ray ``K``, half the kernel
+#: degree ``m``, and the flags ``strict`` and ``spans``
+UnionWalk = namedtuple("UnionWalk", ["z0", "h", "zlo", "zhi", "span_tol", "inv_s2", "norm", "K", "m",
+                                     "strict", "spans"])
 
 
 @unrefcounted_kernel
@@ -272,7 +280,7 @@ def settle_gap(cur, te, fe, zlo, zhi, span_tol):
 
 
 @unrefcounted_kernel
-def split_piece(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, p, mono, deep):
+def split_piece(seg, g, hrec, r, wk, scratch, st, sti, cur, cnt, p, mono, deep):
     """Split the ambiguous piece in stack slot ``p`` (see :func:`walk_strut`);
     returns the new stack size.
 
@@ -281,8 +289,7 @@ def split_piece(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, p, mono, de
     right half keeps slot ``p``); a centre-free piece (spans) at
     :func:`gap_split`.
     """
-    z0, h, span_tol, inv_s2, norm = fp[0], fp[1], fp[4], fp[6], fp[7]
-    m = ip[1]
+    z0, h, span_tol, inv_s2, norm, m = wk.z0, wk.h, wk.span_tol, wk.inv_s2, wk.norm, wk.m
     px, py = cur[W_PX], cur[W_PY]
     te, fe, de = st[p, 0], st[p, 1], st[p, 2]
     q0 = sti[p, 1]
@@ -316,12 +323,11 @@ def place_crossing(cur, te, fe, de, xs, cnt):
 
 
 @unrefcounted_kernel
-def start_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt):
+def start_strut(seg, g, hrec, r, wk, scratch, st, sti, cur, cnt):
     """Push the strut's pieces ``[t_in, t*]`` and ``[t*, t_out]`` (one piece when
     ``t*`` is not inside) and set the current point to ``t_in`` (f = f' = 0);
     returns the stack size."""
-    z0, h, inv_s2, norm = fp[0], fp[1], fp[6], fp[7]
-    K, m = ip[0], ip[1]
+    z0, h, inv_s2, norm, K, m = wk.z0, wk.h, wk.inv_s2, wk.norm, wk.K, wk.m
     tin, tout, tst = hrec[r, H_TIN], hrec[r, H_TOUT], hrec[r, H_TSTAR]
     kin = first_centre(tin, z0, h, K)
     kout = first_centre(tout, z0, h, K) - 1
@@ -341,17 +347,15 @@ def start_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt):
 
 
 @unrefcounted_kernel
-def walk_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, runs, xs):
+def walk_strut(seg, g, hrec, r, wk, scratch, st, sti, cur, cnt, runs, xs):
     """Classify the centres of one strut's support on a ray (module docstring).
 
     Parameters
     ----------
     seg : (m, 10) float64
         Segment table; ``g`` the strut, ``hrec[r]`` its hit record.
-    fp : (10,) float64
-        ``z0, h, zlo, zhi, span_tol, pad, inv_s2, norm, px, py`` (mm; inv_s2 = 1/sigma^2).
-    ip : (4,) int64
-        ``K, m, strict, spans`` (m: half the kernel degree).
+    wk : UnionWalk
+        The grid and the options (:data:`UnionWalk`).
     scratch : (SCRATCH,) float64
     st, sti : (MAX_STACK, 3) float64 / int64
         Stack: right end (t, f, f') / (kind, q0, q1); kind 1 is a classified centre.
@@ -367,9 +371,9 @@ def walk_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, runs, xs):
     bool
         False when a buffer or the stack is full.
     """
-    z0, h, zlo, zhi, span_tol = fp[0], fp[1], fp[2], fp[3], fp[4]
-    strict, spans = ip[2] != 0, ip[3] != 0
-    sp = start_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt)
+    z0, h, zlo, zhi, span_tol = wk.z0, wk.h, wk.zlo, wk.zhi, wk.span_tol
+    strict, spans = wk.strict, wk.spans
+    sp = start_strut(seg, g, hrec, r, wk, scratch, st, sti, cur, cnt)
     inside = False
     while sp > 0:
         sp -= 1
@@ -399,7 +403,7 @@ def walk_strut(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, runs, xs):
             else:
                 if sp + 3 > MAX_STACK:
                     return False
-                sp = split_piece(seg, g, hrec, r, fp, ip, scratch, st, sti, cur, cnt, p, mono, sp >= DEEP)
+                sp = split_piece(seg, g, hrec, r, wk, scratch, st, sti, cur, cnt, p, mono, sp >= DEEP)
                 continue
         if spans and (fe >= 1.0) != inside:
             if not place_crossing(cur, te, fe, de, xs, cnt):
@@ -421,7 +425,7 @@ def covered(runs, n, k0, k1):
 
 
 @unrefcounted_kernel
-def union_ray(seg, boxes, ids, i0, i1, fp, ip, kp, bufs, runs, xs, cnt):
+def union_ray(seg, boxes, ids, i0, i1, wk, kp, bufs, runs, xs, cnt):
     """Runs (and crossings) of one ray of the union, merged; see the module docstring.
 
     ``kp`` is ``(n, sigma, norm, kmax)``; ``bufs`` the ray walk's work arrays
@@ -430,8 +434,7 @@ def union_ray(seg, boxes, ids, i0, i1, fp, ip, kp, bufs, runs, xs, cnt):
     """
     scratch, hrec, st, sti, cur = bufs
     n, sigma, norm, kmax = kp
-    z0, h, zlo, zhi = fp[0], fp[1], fp[2], fp[3]
-    K, spans = ip[0], ip[3] != 0
+    z0, h, zlo, zhi, K, spans = wk.z0, wk.h, wk.zlo, wk.zhi, wk.K, wk.spans
     px, py = cur[W_PX], cur[W_PY]
     cnt[C_RUN] = 0
     cnt[C_X] = 0
@@ -451,23 +454,21 @@ def union_ray(seg, boxes, ids, i0, i1, fp, ip, kp, bufs, runs, xs, cnt):
             kb = first_centre(hrec[0, H_TOUT], z0, h, K) - 1
             if kb < ka or covered(runs, cnt[C_RUN], ka, kb):
                 continue
-        if not walk_strut(seg, g, hrec, 0, fp, ip, scratch, st, sti, cur, cnt, runs, xs):
+        if not walk_strut(seg, g, hrec, 0, wk, scratch, st, sti, cur, cnt, runs, xs):
             return False
     cnt[C_RUN] = merge_runs(runs, cnt[C_RUN])
     if spans:
-        cnt[C_X] = merge_spans(xs, cnt[C_X], 2.0 * fp[4], fp[0], fp[1])
+        cnt[C_X] = merge_spans(xs, cnt[C_X], 2.0 * wk.span_tol, z0, h)
     return True
 
 
 @unrefcounted_kernel
-def sampling_ray(seg, boxes, ids, i0, i1, fp, ip, kp, bufs, runs, cnt):
+def sampling_ray(seg, boxes, ids, i0, i1, wk, kp, bufs, runs, cnt):
     """Runs of one ray of the union by evaluating ``max_i f_i`` at every centre
     (the sampling method), over the z-sorted bucket list ``ids[i0:i1]``."""
-    scratch, active = bufs
-    z0, h = fp[0], fp[1]
-    inv_s2, norm = fp[6], fp[7]
-    K, m = ip[0], ip[1]
-    px, py = fp[8], fp[9]
+    scratch, active, cur = bufs
+    z0, h, inv_s2, norm, K, m = wk.z0, wk.h, wk.inv_s2, wk.norm, wk.K, wk.m
+    px, py = cur[W_PX], cur[W_PY]
     cnt[C_RUN] = 0
     cnt[C_X] = 0
     na = 0
@@ -542,16 +543,15 @@ def trace_union_buckets(method, buckets, first, bk, grid, prim, opt, out):
         bx = bidx - by * nbx
         i0 = bucket_off[bidx]
         i1 = bucket_off[bidx + 1]
-        fp = np.array([z0, h, zlo, zhi, span_tol, PAD, 1.0 / (sigma * sigma), norm, 0.0, 0.0])
-        ip = np.array([K, n // 2, 1 if strict else 0, 1 if spans else 0], dtype=np.int64)
+        wk = UnionWalk(z0, h, zlo, zhi, span_tol, 1.0 / (sigma * sigma), norm, K, n // 2, strict, spans)
         kp = (n, sigma, norm, kmax)
         own = (np.empty(SCRATCH), np.zeros(5), np.empty((1, NHIT)), np.empty((MAX_STACK, 3)),
                np.empty((MAX_STACK, 3), dtype=np.int64), np.empty(max(i1 - i0, 1), dtype=np.int64),
                np.empty((max(cap, 16), 2), dtype=np.int64), np.empty(max(xcap, 16) if spans else 2),
-               np.zeros(3, dtype=np.int64), fp, ip)
-        scratch, cur, hrec1, st, sti, active, runs, xs, cnt, fp, ip = borrow(own)
+               np.zeros(3, dtype=np.int64))
+        scratch, cur, hrec1, st, sti, active, runs, xs, cnt = borrow(own)
         bufs = (scratch, hrec1, st, sti, cur)
-        sbufs = (scratch, active)
+        sbufs = (scratch, active, cur)
         rk0_all = borrow(run_k0[q])
         rk1_all = borrow(run_k1[q])
         cz_all = borrow(cross_z[q])
@@ -571,12 +571,10 @@ def trace_union_buckets(method, buckets, first, bk, grid, prim, opt, out):
                     continue
                 cur[W_PX] = x0 + i * pxs
                 cur[W_PY] = y0 - j * pys
-                fp[8] = cur[W_PX]
-                fp[9] = cur[W_PY]
                 if method == 1:
-                    ok = sampling_ray(seg, boxes, ids, i0, i1, fp, ip, kp, sbufs, runs, cnt)
+                    ok = sampling_ray(seg, boxes, ids, i0, i1, wk, kp, sbufs, runs, cnt)
                 else:
-                    ok = union_ray(seg, boxes, ids, i0, i1, fp, ip, kp, bufs, runs, xs, cnt)
+                    ok = union_ray(seg, boxes, ids, i0, i1, wk, kp, bufs, runs, xs, cnt)
                 if ok:
                     ok = store_ray(runs, xs, cnt, rk0_all[used:], rk1_all[used:], cap - used,
                                    cz_all[xused:], xcap - xused)
