@@ -67,11 +67,10 @@ from formats.base import BinaryStackWriter, fixed_string
 from formats.printer_profiles import plate_printer
 from formats.rle import Band, GreyLevels, runs, split_runs
 from formats.thumbnails import rgb565
+from slicer.constants import SQUARE_TOLERANCE
 
 PREVIEW = (224, 168)
 PREVIEW2 = (320, 190)
-#: tolerance on square pixels for version 1 (one pixel-size field)
-SQUARE_TOLERANCE = 0.01
 PW0_GREYS = GreyLevels([17 * c for c in range(16)])
 PWS_RUN = 125
 

@@ -18,7 +18,7 @@ Numba keys a cached function on its own file only: editing a callee in another
 file (say ``field/segment.py`` under ``trace/summed.py``) would silently reuse
 stale machine code. The kernels are therefore cached per *group* (a subfolder of
 :mod:`slicer._kernels`): a group's functions live in a folder named after a hash
-of this file, the group's sources and the sources of every group it imports,
+of this file and :mod:`slicer.constants`, the group's sources and the sources of every group it imports,
 directly or not (:func:`group_keys`). Editing the renderer starts a fresh cache
 for the renderer alone; editing the field starts one for every group built on it.
 The folders sit under ``NUMBA_CACHE_DIR`` when it is set, else under
@@ -37,6 +37,7 @@ from numba.core import caching
 CACHE: bool = os.environ.get("SKELSLICE_NUMBA_CACHE", "1") not in ("0", "false", "no")
 
 _KERNELS = Path(__file__).parent / "_kernels"
+_SHARED = (Path(__file__), Path(__file__).parent / "constants.py")
 _GROUP_IMPORT = re.compile(r"\bslicer\._kernels\.(\w+)")
 
 
@@ -45,20 +46,21 @@ def _group_sources(kernels: Path) -> dict[str, list[Path]]:
             if d.is_dir() and (d / "__init__.py").exists()}
 
 
-def group_keys(kernels: Path = _KERNELS, jit_file: Path = Path(__file__)) -> dict[str, str]:
+def group_keys(kernels: Path = _KERNELS, shared: tuple[Path, ...] = _SHARED) -> dict[str, str]:
     """The cache key of every kernel group.
 
     Parameters
     ----------
     kernels : Path
         The kernel package (``slicer/_kernels``); each subfolder with an ``__init__.py`` is a group.
-    jit_file : Path
-        The decorator presets (this file), part of every key.
+    shared : tuple of Path
+        Files part of every key: the decorator presets (this file) and the tolerances
+        (:mod:`slicer.constants`), whose values are frozen into the compiled code.
 
     Returns
     -------
     dict
-        Group name -> 16 hex digits: a hash of ``jit_file``, the group's sources and the sources of
+        Group name -> 16 hex digits: a hash of the ``shared`` files, the group's sources and the sources of
         every group it imports (``slicer._kernels.<group>``), directly or through other groups.
     """
     sources = _group_sources(kernels)
@@ -73,7 +75,9 @@ def group_keys(kernels: Path = _KERNELS, jit_file: Path = Path(__file__)) -> dic
                 if d not in closure:
                     closure.add(d)
                     todo.append(d)
-        h = hashlib.sha256(jit_file.read_bytes())
+        h = hashlib.sha256()
+        for f in shared:
+            h.update(f.read_bytes())
         for d in sorted(closure):
             for f, t in zip(sources[d], texts[d]):
                 h.update(f"{d}/{f.relative_to(kernels / d).as_posix()}".encode())

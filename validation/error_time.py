@@ -54,10 +54,10 @@ from slicer.tracer.slicing import slice_skeleton, trace
 from validation import machine
 from validation.bench import _warmup
 from validation.metrics import hausdorff, polygon_rings
+from slicer.constants import REFERENCE_CONTOUR_TOL as REF_TOL
 
 #: reference: pixels across the support box, contour tolerance (mm)
 REF_PIXELS = 1024
-REF_TOL = 1e-5
 #: fractions of the model's height where the error is measured
 TARGETS = (0.17, 0.33, 0.5, 0.67, 0.83)
 

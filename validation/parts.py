@@ -42,9 +42,8 @@ from validation.independent import project
 from validation.metrics import _edge_points, hausdorff, polygon_rings, rasterize_rings
 from validation.reference_mesh import reference_band
 from validation.validate import assemble_report, pick_layers
+from slicer.constants import DISTANCE_SLACK as SLACK
 
-#: slack for floating-point noise in distance checks, mm
-SLACK = 1e-9
 
 
 def _manifold(mesh):

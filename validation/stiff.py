@@ -62,9 +62,8 @@ from slicer.tracer.slicing import trace
 from validation import machine
 from validation import reference_field as ref
 from validation.bench import _warmup
+from slicer.constants import STIFF_FIELD_TOL as TOL
 
-#: voxels with |F - 1| at most this are not counted as mismatches (summation order)
-TOL = 1e-9
 #: field error bound: relative where the reference is >= TINY, absolute below
 FIELD_REL = 1e-10
 FIELD_ABS = 1e-14

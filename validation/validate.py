@@ -37,9 +37,8 @@ from slicer.tracer.slicing import slice_skeleton
 from validation.bench import square_bounds
 from validation.metrics import compare_layer, contour_error_bound, polygon_rings, rasterize_rings, summarise
 from validation.reference_mesh import reference_sections
+from slicer.constants import DISTANCE_SLACK as SLACK
 
-#: slack for floating-point noise in distance checks, mm
-SLACK = 1e-9
 
 
 def pick_layers(result, n: int) -> list[int]:

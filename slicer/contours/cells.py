@@ -49,6 +49,7 @@ from slicer.model.field import plane_footprints, plane_grid, point_grid, support
 from slicer.model.skeleton import Skeleton
 from slicer.contours.roots import FIELD_SLACK, _field, solve_crossings
 from slicer.contours.simplify import CHORD_FRACTION
+from slicer.constants import TOL_ULPS
 
 #: pieces per segment of the cheap disc bounds tried before the full ones
 #: (:meth:`_Bounds.classify`)
@@ -71,8 +72,6 @@ SAGITTA = 0.145
 #: (the corners of those see most of what is wider than a quarter of their side)
 THIN_FRACTION = 0.25
 
-#: smallest tolerance as a multiple of the float64 spacing at the scene's coordinates
-TOL_ULPS = 1024
 
 
 def check_resolvable(skel: Skeleton, tol: float, name: str = "--contour-tol") -> float:

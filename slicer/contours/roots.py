@@ -10,10 +10,8 @@ from slicer.arguments import positive_number
 from slicer.errors import GridError
 from slicer.model.field import PointGrid, evaluate, plane_field, plane_grid, point_grid
 from slicer.model.skeleton import Skeleton
+from slicer.constants import FIELD_SLACK
 
-#: relative error budget of one closed-form field evaluation (docs/math.md §2.6
-#: and the stiff-case suite: ~1e-13)
-FIELD_SLACK = 1e-9
 
 #: batches smaller than this are evaluated on one thread: waking the pool
 #: costs more than it saves, and on a loaded machine a parallel launch can

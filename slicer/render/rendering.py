@@ -39,6 +39,7 @@ from slicer.model.field import segment_table
 from slicer.tracer.buckets import Buckets, thread_order
 from slicer.errors import GridError
 from slicer.model.skeleton import Skeleton
+from slicer.constants import RENDER_TOLERANCE as TOLERANCE
 
 #: view name -> (view direction, up hint)
 VIEWS = {
@@ -52,8 +53,6 @@ CAMERAS = ("ortho", "perspective")
 MAX_SIZE = 16384
 #: empty border around the framed model, fraction of the image
 MARGIN = 0.03
-#: default crossing tolerance, fraction of the support box diagonal
-TOLERANCE = 1e-4
 
 #: default look: a clear blue for surfaces facing the viewer (entries), a deep
 #: blue for surfaces facing away (exits); the light comes from behind the

@@ -81,6 +81,7 @@ from slicer.arguments import scene_numbers
 from slicer.errors import SceneError
 from slicer.parts.meshes import Mesh, make_mesh
 from slicer.model.skeleton import Skeleton
+from slicer.constants import SIMILARITY_RTOL
 
 CORE_NS = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
 BEAM_NS = "http://schemas.microsoft.com/3dmanufacturing/beamlattice/2017/02"
@@ -115,8 +116,6 @@ BENIGN_WARNINGS = {
 
 #: lib3mf ModelUnit value -> mm per model unit
 UNIT_MM = {0: 0.001, 1: 1.0, 2: 10.0, 3: 25.4, 4: 304.8, 5: 1000.0}
-#: relative tolerance on the singular values of a similarity transform
-SIMILARITY_RTOL = 1e-5
 #: lib3mf object types
 _MODEL, _SUPPORT, _SOLID_SUPPORT, _SURFACE = 1, 2, 3, 4
 _CAPS = {0: "sphere", 1: "hemisphere", 2: "butt"}

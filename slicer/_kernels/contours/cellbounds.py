@@ -33,12 +33,11 @@ from slicer._jit import inline_kernel, kernel, parallel_kernel, unrefcounted_ker
 from slicer._kernels.runtime.borrow import borrow, keep_alive
 from slicer._kernels.field.segment import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 from slicer._kernels.rays.support import kprime_max
+from slicer.constants import BOUND_SLACK as SLACK
 
 #: discs per task of :func:`disc_bounds_binned` (each task owns one work area)
 CHUNK = 64
 
-#: relative slack on every computed bound (rounding of a few dozen operations is ~1e-15)
-SLACK = 1e-9
 
 
 @unrefcounted_kernel

@@ -10,6 +10,7 @@ from slicer._jit import inline_kernel, parallel_kernel, unrefcounted_kernel
 from slicer._kernels.runtime.borrow import borrow, keep_alive
 from slicer._kernels.field.segment import (AX, AY, AZ, LANE_TAG, LANES, LEN, SCRATCH, TAU1, UX, UY, UZ, lane_load, lane_result, segment_eval,
                     segment_first_lanes)
+from slicer.constants import REACH_SLACK
 
 
 @parallel_kernel
@@ -97,8 +98,6 @@ def point_field(seg, offsets, ids, origin, cell, dims, m, inv_s2, norm, grad, sc
     return sf, sx, sy, sz
 
 
-#: relative margin of :func:`may_reach` (the rounding of its few operations is ~1e-15)
-REACH_SLACK = 1e-9
 
 
 @inline_kernel

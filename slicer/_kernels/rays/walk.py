@@ -24,14 +24,8 @@ import numpy as np
 from slicer._jit import inline_kernel, kernel, unrefcounted_kernel
 from slicer._kernels.field.segment import LANE_TAG, LANES, SCRATCH, lane_load, lane_result, segment_eval, segment_first_lanes
 from slicer._kernels.rays.support import H_FMAX, H_TIN, H_TOUT, H_TSTAR, NHIT, lipschitz
+from slicer.constants import PAD, SURFACE_BAND
 
-#: relative pad of every verdict "F > 1" / "F < 1" from bounds: a bound must
-#: clear 1 by PAD * (1 + |bound|), far above the rounding of the summed field
-PAD = 1e-10
-#: |F - 1| below this at both ends of a piece holding no voxel centre is
-#: rounding noise: crossings are not refined there (a pixel column lying in
-#: the surface of a constant-radius strut)
-SURFACE_BAND = 1e-9
 
 
 @kernel
