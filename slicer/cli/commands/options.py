@@ -49,7 +49,7 @@ trace_options = _stack(
                  help="Do not rely on per-primitive unimodality (Lipschitz bounds only)."),
     click.option("--blend", type=click.Choice(BLENDS), default="sum", show_default=True,
                  help="How the struts' fields combine: sum (the paper's smooth blending) or union (every strut "
-                      "keeps its designed radius; refused until the tracer supports it)."),
+                      "keeps its designed radius; with --method interval or sampling)."),
 )
 
 #: --blend alone (commands without the tracing options)
