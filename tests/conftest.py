@@ -1,4 +1,7 @@
-"""Shared fixtures.
+"""Shared fixtures (shared plain functions and data are in ``tests/helpers.py``).
+
+``ell``: a small chiral model (a post with a long +x arm and a short +y arm) saved
+as JSON, once per test module; the format tests slice it.
 
 ``checker``: the Rust checker in ``tests/readers`` (our cargo project around
 the ``colain``, ``goo`` and ``msla_format`` crates), built once per session with
@@ -29,6 +32,8 @@ import pytest
 from hypothesis import HealthCheck, settings
 
 import fuzz_helpers
+from helpers import missing_tool
+from slicer import Skeleton
 
 _FUZZ = dict(deadline=None, database=None, print_blob=True,
              suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much])
@@ -65,11 +70,13 @@ READERS = Path(__file__).resolve().parent / "readers"
 READERS_GO = Path(__file__).resolve().parent / "readers_go"
 
 
-def missing_tool(reason: str) -> None:
-    """Skip (or, with ``SKELSLICE_REQUIRE_READERS`` set, fail) for a missing toolchain."""
-    if os.environ.get("SKELSLICE_REQUIRE_READERS", "").strip() not in ("", "0"):
-        pytest.fail(f"{reason}; SKELSLICE_REQUIRE_READERS is set, so every reader must run")
-    pytest.skip(reason)
+@pytest.fixture(scope="module")
+def ell(tmp_path_factory):
+    """A small chiral model: a post with a long +x arm and a short +y arm."""
+    p = tmp_path_factory.mktemp("ell") / "ell.json"
+    Skeleton([[0, 0, 0], [0, 0, 1.6], [2.0, 0, 1.6], [0, 1.0, 1.6]], [[0, 1], [1, 2], [1, 3]],
+             [[0.3, 0.3], [0.3, 0.3], [0.3, 0.3]]).save(p)
+    return p
 
 
 @pytest.fixture(scope="session")

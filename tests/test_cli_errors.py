@@ -1,13 +1,13 @@
 """Bad input through the real entry points: ``skelslice info`` must exit 2 with a
 one-line message naming the file, the entry and the value, and never a traceback.
 
-Every case of ``test_scene_io.BAD_CASES`` runs through ``slicer.cli.app.main``
-(in-process, with click's ``CliRunner``); a few also run as subprocesses through
-``python -m slicer`` and the installed ``skelslice`` console script.
+Every case of ``BAD_CASES`` (``tests/helpers.py``; ``test_scene_io.py`` reads them
+through the API) runs through ``slicer.cli.app.main`` (in-process, with click's
+``CliRunner``); a few also run as subprocesses through ``python -m slicer`` and the
+installed ``skelslice`` console script.
 """
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import shutil
@@ -19,18 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 import slicer.cli.app
-
-
-def _sibling(name: str):
-    """Import a sibling test module by path (independent of pytest's import mode)."""
-    spec = importlib.util.spec_from_file_location(f"_skelslice_{name}", Path(__file__).with_name(f"{name}.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-_cases = _sibling("test_scene_io")
-BAD_CASES, make = _cases.BAD_CASES, _cases.make
+from helpers import BAD_CASES, OBJ_OK, make
 
 
 def invoke(*args: str):
@@ -80,7 +69,7 @@ def test_info_bad_input_with_json_and_options(case_id, tmp_path):
 ])
 def test_info_bad_options_are_usage_errors(args, fragment, tmp_path):
     path = tmp_path / "s.obj"
-    path.write_text(_cases.OBJ_OK)
+    path.write_text(OBJ_OK)
     result = invoke("info", str(path), *args)
     assert result.exit_code == 2
     assert "Traceback" not in result.output
@@ -141,7 +130,7 @@ def test_console_script_info_bad_input(case_id, tmp_path):
 def test_console_script_info_happy_path(tmp_path):
     script = _console_script()
     path = tmp_path / "s.obj"
-    path.write_text(_cases.OBJ_OK)
+    path.write_text(OBJ_OK)
     proc = _run([script, "info", str(path), "--json"], tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["segments"] == 2

@@ -6,11 +6,10 @@ import signal
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
+from helpers import assert_refused, run
 from interrupting import interrupt_and_check, start_slice, wait_mid_write
 from slicer import Skeleton
-from slicer.cli.app import main
 
 
 @pytest.fixture(scope="module")
@@ -19,17 +18,6 @@ def scene(tmp_path_factory):
     Skeleton([[0, 0, 0], [0, 0, 2], [1, 0, 3], [-1, 0, 3]], [[0, 1], [1, 2], [1, 3]],
              [[0.4, 0.3], [0.3, 0.2], [0.3, 0.2]]).save(p)
     return p
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
-
-
-def assert_refused(r, *needles):
-    assert r.exit_code == 2, (r.exit_code, r.output)
-    assert "Traceback" not in r.output
-    for n in needles:
-        assert n in r.output, (n, r.output)
 
 
 def test_slice_writes_stack_and_layout(scene, tmp_path):

@@ -18,14 +18,13 @@ import zipfile
 import numpy as np
 import pytest
 
+from format_readers import read_ctb, read_goo_lazy, read_photon
 from formats import WRITERS
 from formats.estimate import LayerMeter, PrintEstimate, duration, exposure_times, print_estimate
 from formats.printer_profiles import PRINTERS, PrintSettings
+from helpers import run
 from slicer import Skeleton, load_scene
 from slicer.tracer.grid import SliceGrid
-from test_formats_ctb import read_ctb
-from test_formats_images import read_goo_lazy, run
-from test_formats_photon import read_photon
 
 H = 0.1
 #: full columns and rows of the slab, its layers (the last one 60 % covered)

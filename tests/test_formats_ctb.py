@@ -1,6 +1,6 @@
 """Chitubox CTB v3 and v2 read back by two independent readers.
 
-* Our own reader below, written from the public layout (catibo's
+* Our own reader (``tests/format_readers.py``), written from the public layout (catibo's
   ``cbddlp-ctb.adoc``; docs/printers.md): every header, print-parameter,
   slicer and layer-table field, the v3 per-layer records, the previews, and
   every layer (decrypted with the keystream recurrence written out here,
@@ -15,7 +15,6 @@
 from __future__ import annotations
 
 import json
-import struct
 import zipfile
 
 import numpy as np
@@ -24,10 +23,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
+from format_readers import decode_rgb15, decode_rle7, read_ctb, reference_keystream
 from formats.ctb import GREYS, KEY, cipher, encode_preview, encode_rle, keystream
 from formats.estimate import print_estimate
 from formats.printer_profiles import PRINTERS, PrintSettings
-from test_formats_images import ell, run  # noqa: F401  (the chiral test model, CliRunner helper)
+from helpers import run
 from uv3dp_checks import uv3dp_convert, uv3dp_layers
 
 COMMON = ["--printer", "elegoo-saturn", "--layer-height", "0.2", "--exposure", "2.2", "--bottom-exposure", "28",
@@ -54,102 +54,7 @@ def plate_layers(path):
         return meta, [np.asarray(Image.open(z.open(f))) for f in meta["files"]]
 
 
-# ---------------------------------------------------------------- our reader, from the public layout
-def reference_keystream(key: int, index: int, n: int) -> bytes:
-    """catibo's "86 cipher" keystream, word by word (constants as UVtools and uv3dp use them)."""
-    c = (key * 0x2D83CDAC + 0xD8A83423) % 2**32
-    x = ((index * 0x1E1530CD + 0xEC3D47CD) * c) % 2**32
-    out = bytearray()
-    while len(out) < n:
-        out += x.to_bytes(4, "little")
-        x = (x + c) % 2**32
-    return bytes(out[:n])
-
-
-def decode_rle7(data: bytes, n_pixels: int) -> np.ndarray:
-    """CTB layer RLE to 8-bit greys (0, or 2 c + 1)."""
-    vals, lens = [], []
-    i = 0
-    while i < len(data):
-        code = data[i]
-        i += 1
-        length = 1
-        if code & 0x80:
-            code &= 0x7F
-            b = data[i]
-            if b & 0x80 == 0:
-                length, extra = b, 0
-            elif b & 0xC0 == 0x80:
-                length, extra = b & 0x3F, 1
-            elif b & 0xE0 == 0xC0:
-                length, extra = b & 0x1F, 2
-            else:
-                assert b & 0xF0 == 0xE0, "bad run-length prefix"
-                length, extra = b & 0x0F, 3
-            for e in range(extra):                               # big-endian continuation bytes
-                length = (length << 8) | data[i + 1 + e]
-            i += 1 + extra
-        assert length > 0
-        vals.append(0 if code == 0 else 2 * code + 1)
-        lens.append(length)
-    out = np.repeat(np.array(vals, np.uint8), lens)
-    assert out.size == n_pixels, f"runs cover {out.size} of {n_pixels} pixels"
-    return out
-
-
-def decode_rgb15(data: bytes, w: int, h: int) -> np.ndarray:
-    words = struct.unpack(f"<{len(data) // 2}H", data)
-    px, i = [], 0
-    while i < len(words):
-        v, n = words[i], 1
-        if v & 0x20:
-            assert words[i + 1] & 0xF000 == 0x3000
-            n += words[i + 1] & 0xFFF
-            i += 1
-        i += 1
-        px += [((v >> 11) & 0x1F, (v >> 6) & 0x1F, v & 0x1F)] * n
-    assert len(px) == w * h
-    return np.array(px, np.uint8).reshape(h, w, 3)
-
-
-def read_ctb(path) -> dict:
-    raw = path.read_bytes()
-    f = {}
-    (f["magic"], f["version"], *f["bed"]) = struct.unpack_from("<2I3f", raw, 0)
-    (f["height"], f["layer_height"], f["exposure"], f["bottom_exposure"], f["light_off"]) = \
-        struct.unpack_from("<5f", raw, 0x1C)
-    (f["bottom_layers"], f["res_x"], f["res_y"], f["preview_large"], f["table"], f["layers"], f["preview_small"],
-     f["print_time"], f["projector"], f["params_at"], f["params_size"], f["aa"]) = struct.unpack_from("<12I", raw, 0x30)
-    f["pwm"], f["bottom_pwm"], f["key"], f["slicer_at"], f["slicer_size"] = struct.unpack_from("<2H3I", raw, 0x60)
-    assert f["params_size"] == 60 and f["slicer_size"] == 76
-    p = struct.unpack_from("<10f5I", raw, f["params_at"])
-    f["params"] = dict(zip(["bottom_lift", "bottom_lift_speed", "lift", "lift_speed", "retract_speed", "volume",
-                            "weight", "cost", "bottom_light_off", "light_off", "bottom_layers"], p))
-    f["params"]["padding"] = p[11:]
-    s = f["slicer_at"]
-    name_at, name_len = struct.unpack_from("<2I", raw, s + 0x1C)
-    f["machine"] = raw[name_at:name_at + name_len].decode()
-    f["aa_flag"], f["per_layer"] = raw[s + 0x24], raw[s + 0x27]
-    f["minutes"], f["aa_level"], f["software"] = struct.unpack_from("<3I", raw, s + 0x28)
-    f["previews"] = {}
-    for key in ("preview_large", "preview_small"):
-        w, h, at, n = struct.unpack_from("<4I", raw, f[key])
-        f["previews"][(w, h)] = decode_rgb15(raw[at:at + n], w, h)
-    f["layer_defs"], f["images"], f["ex"] = [], [], []
-    for k in range(f["layers"]):
-        z, exp, off, at, n, page, size, u3, u4 = struct.unpack_from("<3f6I", raw, f["table"] + 36 * k)
-        f["layer_defs"].append({"z": z, "exposure": exp, "light_off": off, "size": size, "zeros": (page, u3, u4)})
-        if f["version"] >= 3:
-            ex = raw[at - 84:at]
-            assert ex[:36] == raw[f["table"] + 36 * k:f["table"] + 36 * k + 36], "v3 record repeats the table entry"
-            total, *vals = struct.unpack_from("<I11f", ex, 36)
-            assert total == 84 + n
-            f["ex"].append(vals)
-        plain = bytes(a ^ b for a, b in zip(raw[at:at + n], reference_keystream(f["key"], k, n)))
-        f["images"].append(decode_rle7(plain, f["res_x"] * f["res_y"]).reshape(f["res_y"], f["res_x"]))
-    return f
-
-
+# ---------------------------------------------------------------- our reader (tests/format_readers.py)
 @pytest.mark.parametrize("name, version", [("v3.ctb", 3), ("v2.ctb", 2), ("aa.ctb", 3)])
 def test_our_reader_checks_every_field(jobs, name, version):
     p = PRINTERS["elegoo-saturn"]

@@ -1,8 +1,9 @@
 """Image-stack formats read back by independent readers: zip, SL1/SL1S, GOO.
 
-* GOO: a decoder written here from Elegoo's spec (docs/formats.md §2.1), checking
-  every header offset, record, checksum and pixel; plus the ``goo`` crate
-  checker (``tests/readers``, built by the ``checker`` fixture where cargo exists).
+* GOO: a decoder written from Elegoo's spec (docs/formats.md §2.1;
+  ``tests/format_readers.py``), checking every header offset, record, checksum
+  and pixel; plus the ``goo`` crate checker (``tests/readers``, built by the
+  ``checker`` fixture where cargo exists).
 * SL1/SL1S: every reader rule of docs/formats.md §1.3 (PrusaSlicer importer,
   Prusa firmware, UVtools) checked on our archives; uv3dp (the ``uv3dp``
   fixture) reads them as a second SL1 reader, every layer pixel for pixel;
@@ -25,36 +26,20 @@ import struct
 import subprocess
 import sys
 import zipfile
-from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from conftest import missing_tool
+from format_readers import goo_decode_rle, read_goo, read_goo_lazy
 from formats.goo import HEADER_SIZE, GooWriter, encode_layer
 from formats.printer_profiles import PRINTERS, PrintSettings
+from helpers import missing_tool, run
 from interrupting import interrupt_and_check, start_slice, wait_mid_write
 from slicer import Skeleton
-from slicer.cli.app import main
 from slicer.tracer.grid import SliceGrid
-
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
-
-
-@pytest.fixture(scope="module")
-def ell(tmp_path_factory):
-    """A small chiral model: a post with a long +x arm and a short +y arm."""
-    p = tmp_path_factory.mktemp("ell") / "ell.json"
-    Skeleton([[0, 0, 0], [0, 0, 1.6], [2.0, 0, 1.6], [0, 1.0, 1.6]], [[0, 1], [1, 2], [1, 3]],
-             [[0.3, 0.3], [0.3, 0.3], [0.3, 0.3]]).save(p)
-    return p
 
 
 @pytest.fixture(scope="module")
@@ -77,96 +62,7 @@ def _zip_plate_layers(path):
         return meta, [np.asarray(Image.open(z.open(f))) for f in meta["files"]]
 
 
-# ---------------------------------------------------------------- GOO reader (from the spec)
-def goo_decode_rle(data: bytes, n_pixels: int) -> np.ndarray:
-    """Decode a GOO layer payload (all four chunk types) to a flat uint8 array."""
-    out = np.zeros(n_pixels, np.uint8)
-    pos, i, colour = 0, 0, 0
-    while i < len(data):
-        b0 = data[i]
-        kind, width, low = b0 >> 6, (b0 >> 4) & 3, b0 & 0xF
-        i += 1
-        if kind == 2:                                  # diff from the previous pixel
-            diff = low if not (b0 & 0x20) else -low
-            colour += diff
-            if b0 & 0x10:
-                length = data[i]
-                i += 1
-            else:
-                length = 1
-        else:
-            if kind == 1:
-                colour = data[i]
-                i += 1
-            else:
-                colour = 0 if kind == 0 else 255
-            length = low
-            for e in range(width):                     # big-endian extra bytes, most significant first
-                length += data[i] << (4 + 8 * (width - 1 - e))
-                i += 1
-        assert length > 0, "zero-length run"
-        assert pos + length <= n_pixels, "runs overflow the image"
-        out[pos:pos + length] = colour
-        pos += length
-    assert pos == n_pixels, f"runs cover {pos} of {n_pixels} pixels"
-    return out
-
-
-#: a GOO layer record's fields (spec V1.2 "layer content"), in file order
-LAYER_FIELDS = ("pause", "pause_z", "z", "exposure", "off_time", "before_lift", "after_lift", "after_retract",
-                "lift", "lift_speed", "lift2", "lift2_speed", "retract", "retract_speed", "retract2",
-                "retract2_speed", "pwm")
-
-
-def read_goo(path):
-    """Parse a whole GOO file; returns (header dict, list of (record dict, image))."""
-    h, layers = read_goo_lazy(path)
-    return h, list(layers)
-
-
-def read_goo_lazy(path):
-    """Parse a GOO file: (header dict, iterator of (record dict, image)), one layer at a time."""
-    raw = Path(path).read_bytes()
-    h = {}
-    assert raw[0:4] == b"V3.0"
-    assert raw[4:12] == bytes([7, 0, 0, 0, 0x44, 0x4C, 0x50, 0])
-    assert raw[27106:27108] == b"\r\n" and raw[195308:195310] == b"\r\n"
-    h["printer_name"] = raw[92:124].split(b"\0")[0].decode()
-    h["aa"], h["grey"], h["blur"] = struct.unpack_from(">3H", raw, 188)
-    h["layers"], h["x_res"], h["y_res"] = struct.unpack_from(">IHH", raw, 195310)
-    h["x_mirror"], h["y_mirror"] = struct.unpack_from(">??", raw, 195318)
-    h["x_size"], h["y_size"], h["z_size"], h["layer_h"], h["exposure"] = struct.unpack_from(">5f", raw, 195320)
-    h["delay_mode"] = raw[195340]
-    h["waits"] = struct.unpack_from(">7f", raw, 195341)
-    h["bottom_exposure"], h["bottom_layers"] = struct.unpack_from(">fI", raw, 195369)
-    h["lift"] = struct.unpack_from(">16f", raw, 195377)
-    h["pwm"] = struct.unpack_from(">HH", raw, 195441)
-    h["advance"] = raw[195445]
-    h["time"], h["volume"] = struct.unpack_from(">If", raw, 195446)
-    assert struct.unpack_from(">I", raw, 195470)[0] == HEADER_SIZE
-    h["grey_scale_level"] = raw[195474]
-    h["transition"] = struct.unpack_from(">H", raw, 195475)[0]
-    return h, _goo_layers(raw, h)
-
-
-def _goo_layers(raw, h):
-    off = HEADER_SIZE
-    for k in range(h["layers"]):
-        f = struct.unpack_from(">H15fH", raw, off)
-        rec = dict(zip(LAYER_FIELDS, f))
-        off += 2 + 60 + 2
-        assert raw[off:off + 2] == b"\r\n"
-        (n,) = struct.unpack_from(">I", raw, off + 2)
-        assert raw[off + 6] == 0x55
-        payload = raw[off + 7:off + 7 + n - 2]
-        checksum = raw[off + 7 + n - 2]
-        assert checksum == (~sum(payload)) & 0xFF, f"layer {k}: bad checksum"
-        assert raw[off + 5 + n + 1:off + 5 + n + 3] == b"\r\n"
-        off += 5 + n + 3
-        yield rec, goo_decode_rle(payload, h["x_res"] * h["y_res"]).reshape(h["y_res"], h["x_res"])
-    assert raw[off:] == bytes([0, 0, 0, 7, 0, 0, 0, 0x44, 0x4C, 0x50, 0]), "ending string"
-
-
+# ---------------------------------------------------------------- GOO (reader: tests/format_readers.py)
 @settings(max_examples=120, deadline=None)
 @given(st.integers(1, 40), st.integers(1, 40), st.integers(0, 2**32 - 1), st.sampled_from([0.0, 0.3, 0.9]))
 def test_goo_rle_round_trip(H, W, seed, grey_share):

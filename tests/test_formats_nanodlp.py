@@ -30,9 +30,9 @@ from PIL import Image
 
 from formats.nanodlp import NanoDlpWriter, island_sizes, layer_info, pack_rgb, unpack_rgb
 from formats.printer_profiles import PRINTERS
+from helpers import run
 from slicer.errors import OutputError
 from slicer.tracer.grid import SliceGrid
-from test_formats_images import ell, run  # noqa: F401  (the chiral test model, CliRunner helper)
 
 #: X0 Y0 Z0 X1 Y1 Z1 of the plain job: 58 x 38 px at 0.05 mm (58 = 3 x 19 + 1:
 #: the display is padded to 60 columns), 13 layers of 0.2 mm

@@ -1,6 +1,6 @@
 """Anycubic Photon Workshop files (pws, pw0 and the mono-LCD versions) read back.
 
-* Our own reader below, written from the public layout (UVtools
+* Our own reader (``tests/format_readers.py``), written from the public layout (UVtools
   ``AnycubicFile``, PrusaSlicer ``AnycubicSLA``; docs/printers.md), for every
   machine of :data:`formats.photon.MACHINES`: the file mark, every named table
   (name, length, fields), and every layer decoded here equal to the job's zip
@@ -26,10 +26,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
+from format_readers import decode_pw0, decode_pws, layer_images, read_photon, reference_crc
 from formats.photon import MACHINES, PHOTON_WRITERS, PW0_GREYS, encode_pw0, encode_pws, pws_greys
 from formats.printer_profiles import PRINTERS, PrintSettings
 from slicer.errors import FormatError
-from test_formats_images import ell, run  # noqa: F401  (the chiral test model, CliRunner helper)
+from helpers import run
 from uv3dp_checks import sha256, uv3dp_convert, uv3dp_layers
 
 SETTINGS = ["--layer-height", "0.2", "--exposure", "2.4", "--bottom-exposure", "33", "--bottom-layers", "2", "-q"]
@@ -63,144 +64,7 @@ def plate_layers(path):
         return meta, [np.asarray(Image.open(z.open(f))) for f in meta["files"]]
 
 
-# ---------------------------------------------------------------- our reader
-def crc_table():
-    """CRC-16/ARC of each single byte (bit by bit, reflected polynomial 0xA001)."""
-    out = []
-    for b in range(256):
-        crc = b
-        for _ in range(8):
-            crc = (crc >> 1) ^ (0xA001 * (crc & 1))
-        out.append(crc)
-    return out
-
-
-def reference_crc(data: bytes) -> int:
-    """Anycubic's layer checksum as uv3dp documents it: every byte through the table twice."""
-    t = crc_table()
-    crc = 0
-    for b in data:
-        crc = ((crc << 8) ^ t[((crc >> 8) ^ t[b]) & 0xFF]) & 0xFFFF
-    return (t[crc & 0xFF] * 0x100 + t[crc >> 8]) % 0x10000          # 16-bit words: the sum wraps
-
-
-def decode_pw0(data: bytes, n: int) -> tuple[np.ndarray, int]:
-    """pw0 runs to 8-bit greys; returns (pixels, bytes used)."""
-    vals, lens, i, total = [], [], 0, 0
-    while total < n:
-        b = data[i]
-        c, low = b >> 4, b & 0xF
-        if c in (0, 15):
-            length = low << 8 | data[i + 1]
-            i += 2
-        else:
-            length = low
-            i += 1
-        assert length > 0
-        vals.append(17 * c)
-        lens.append(length)
-        total += length
-    assert total == n
-    return np.repeat(np.array(vals, np.uint8), lens), i
-
-
-def decode_pws(data: bytes, n: int, planes: int) -> np.ndarray:
-    count = np.zeros(n, np.int64)
-    i = 0
-    for _ in range(planes):
-        pos = 0
-        while pos < n:
-            b = data[i]
-            i += 1
-            length = b & 0x7F
-            assert 0 < length <= 125
-            if b & 0x80:
-                count[pos:pos + length] += 1
-            pos += length
-        assert pos == n
-    assert i == len(data)
-    return np.where(count > 0, count * (256 // planes) - 1, 0).astype(np.uint8)
-
-
-def table(raw, at, name, length=None, with_head=False):
-    """Check a named table's name and length; returns (length, offset of its payload)."""
-    assert raw[at:at + 12] == name.encode().ljust(12, b"\0"), raw[at:at + 12]
-    (n,) = struct.unpack_from("<I", raw, at + 12)
-    if length is not None:
-        assert n == length + (16 if with_head else 0), (name, n, length)
-    return n, at + 16
-
-
-def read_photon(path, n_layers) -> dict:
-    raw = path.read_bytes()
-    assert raw[:12] == b"ANYCUBIC\0\0\0\0"
-    version, tables = struct.unpack_from("<2I", raw, 12)
-    keys = ["header", "software", "preview", "colours", "layerdef", "extra"] + (["machine"] if version >= 516 else []) \
-        + ["image"] + (["model"] if version >= 517 else []) + (["sublayers", "preview2"] if version >= 518 else [])
-    addr = dict(zip(keys, struct.unpack_from(f"<{len(keys)}I", raw, 20)))
-    f = {"version": version, "tables": tables, "addr": addr}
-    hlen = {1: 80, 516: 84, 517: 92, 518: 96}[version]
-    _, h = table(raw, addr["header"], "HEADER", hlen)
-    names = ["pixel_um", "layer_height", "exposure", "wait", "bottom_exposure", "bottom_layers", "lift", "lift_speed",
-             "retract_speed", "volume"]
-    f.update(zip(names, struct.unpack_from("<10f", raw, h)))
-    f["aa"], f["res_x"], f["res_y"] = struct.unpack_from("<3I", raw, h + 40)
-    f["weight"], f["price"] = struct.unpack_from("<2f", raw, h + 52)
-    f["currency"], f["per_layer"], f["print_time"], f["transition"], f["transition_type"] = \
-        struct.unpack_from("<5I", raw, h + 60)
-    f["rest"] = raw[h + 80:h + hlen]
-    _, p = table(raw, addr["preview"], "PREVIEW", 12 + 224 * 168 * 2, with_head=True)
-    f["preview"] = struct.unpack_from("<3I", raw, p)
-    if version >= 516:
-        use_full, count, *greys, unknown = struct.unpack_from("<2I16BI", raw, addr["colours"])
-        f["colours"] = (use_full, count, greys, unknown)
-        assert addr["colours"] + 28 == addr["layerdef"]
-    else:
-        assert addr["colours"] == addr["software"] == addr["extra"] == 0
-    _, d = table(raw, addr["layerdef"], "LAYERDEF", 4 + 32 * n_layers)
-    assert struct.unpack_from("<I", raw, d)[0] == n_layers
-    f["layers"] = [struct.unpack_from("<2I4f2I", raw, d + 4 + 32 * k) for k in range(n_layers)]
-    if version >= 516:
-        _, e = table(raw, addr["extra"], "EXTRA", 24)
-        f["extra"] = struct.unpack_from("<I6fI6f", raw, e)
-        _, m = table(raw, addr["machine"], "MACHINE", (156 if version < 518 else 224) - 16, with_head=True)
-        f["machine"] = raw[m:m + 96].split(b"\0")[0].decode()
-        f["image_format"] = raw[m + 96:m + 112].split(b"\0")[0].decode()
-        f["machine_fields"] = struct.unpack_from("<2I3f2I", raw, m + 112)
-        if version >= 518:
-            f["machine_518"] = struct.unpack_from("<2f8I2I2H4I", raw, m + 140)
-    if version >= 517:
-        s = addr["software"]
-        assert raw[s:s + 9] == b"skelslice" and struct.unpack_from("<I", raw, s + 32)[0] == 164
-        _, mo = table(raw, addr["model"], "MODEL", 32, with_head=True)
-        f["model"] = struct.unpack_from("<6fIf", raw, mo)
-    if version >= 518:
-        _, sl = table(raw, addr["sublayers"], "SUBIMGS", 8 + 44 * n_layers, with_head=True)
-        f["sublayers"] = [struct.unpack_from("<3I", raw, sl + 8 + 44 * k) for k in range(n_layers)]
-        assert struct.unpack_from("<2I", raw, sl) == (n_layers, 1)
-        _, p2 = table(raw, addr["preview2"], "PREVIEW2", 12 + 320 * 190 * 2, with_head=True)
-        f["preview2"] = struct.unpack_from("<I2HI", raw, p2)
-    f["raw"] = raw
-    return f
-
-
-def layer_images(f, encoding, planes):
-    n = f["res_x"] * f["res_y"]
-    out = []
-    for addr, size, *_ in f["layers"]:
-        data = f["raw"][addr:addr + size]
-        if encoding == "pws":
-            img = decode_pws(data, n, planes)
-        else:
-            img, used = decode_pw0(data, n)
-            if f["version"] == 1:                                    # .pw0: CRC-16 of the runs, big-endian
-                assert used == size - 2 and struct.unpack(">H", data[used:])[0] == reference_crc(data[:used])
-            else:
-                assert used == size
-        out.append(img.reshape(f["res_y"], f["res_x"]))
-    return out
-
-
+# ---------------------------------------------------------------- our reader (tests/format_readers.py)
 @pytest.mark.parametrize("key", [name + ("-aa" if extra else "") for name, extra in JOBS])
 def test_our_reader_checks_every_field(jobs, key):
     name = key.split("-")[0]

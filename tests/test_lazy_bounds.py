@@ -12,13 +12,13 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from helpers import rays
 from sample_lattices import load_sample
 from slicer._kernels.field.segment import SCRATCH
 from slicer._kernels.rays.lazy import bound_at, eval_dir
 from slicer._kernels.rays.walk import piece_bounds_iv
 from slicer._kernels.rays.support import H_TIN, H_TOUT
 from slicer.render.rendering import render
-from test_ray_unimodal import rays
 
 #: rounding slack of the compiled field relative to the ray's peak
 SLACK = 1e-9

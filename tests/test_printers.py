@@ -16,9 +16,9 @@ from PIL import Image
 
 from formats import WRITERS
 from formats.printer_profiles import PRINTERS, get_printer
+from helpers import assert_refused, run
 from slicer import Skeleton
 from slicer.errors import GridError, OptionError
-from test_cli_slice import assert_refused, run
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,7 @@
 """Scene files: JSON v1 and OBJ polylines, round trips, precedence rules and bad input.
 
-``BAD_CASES`` (one entry per kind of bad input) is shared with
-``test_cli_errors.py``, which runs every case through the real CLI.
+``BAD_CASES`` (one entry per kind of bad input, in ``tests/helpers.py``) is shared
+with ``test_cli_errors.py``, which runs every case through the real CLI.
 """
 from __future__ import annotations
 
@@ -9,194 +9,17 @@ import json
 import os
 import string
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from helpers import BAD_CASES, BASE, OBJ_OK, make, scene
 from slicer import Skeleton, load_scene, save_scene
 from slicer.errors import OutputError, SceneError
 
 # ----------------------------------------------------------------------------- helpers
-BASE = {
-    "skelslice": 1,
-    "units": "mm",
-    "nodes": [[0, 0, 0], [0, 0, 10], [10, 0, 10], [10, 10, 10]],
-    "segments": [[0, 1], [1, 2], [2, 3]],
-    "radii": [1.0, 0.5, 0.75, 2.0],
-}
-
-
-def scene(drop=(), **changes) -> str:
-    """JSON text of BASE with keys changed or dropped (NaN/Infinity allowed)."""
-    d = {k: v for k, v in BASE.items() if k not in drop}
-    d.update(changes)
-    return json.dumps(d)
-
-
-def with_node(i, value) -> str:
-    nodes = [list(p) for p in BASE["nodes"]]
-    nodes[i] = value
-    return scene(nodes=nodes)
-
-
-def with_segment(i, value) -> str:
-    segs = [list(s) for s in BASE["segments"]]
-    segs[i] = value
-    return scene(segments=segs)
-
-
-OBJ_OK = "v 0 0 0 1\nv 0 0 10 1\nv 10 0 10 1\nl 1 2 3\n"
-DIR = object()  # content sentinel: make a directory at the path
-
-
-class Case(NamedTuple):
-    id: str
-    name: str  # file name
-    content: object  # str, bytes, None (no file) or DIR
-    must: tuple  # fragments the message must contain (besides the file name)
-    radius: float | None = None
-
-
-BAD_CASES = [
-    # --- the file itself
-    Case("missing-file", "nope.json", None, ("cannot read", "No such file")),
-    Case("directory", "adir.json", DIR, ("cannot read", "directory")),
-    Case("unknown-suffix", "scene.txt", scene(), ("unknown scene file type", "'.txt'", ".json", ".obj")),
-    Case("no-suffix", "scene", scene(), ("unknown scene file type", "no suffix")),
-    Case("not-utf8", "bin.json", b'{"skelslice": 1,\n "units": "\xff\xfe"}', ("line 2", "UTF-8", "0xff")),
-    Case("empty-json", "empty.json", "  \n", ("empty",)),
-    # --- JSON syntax and structure
-    Case("invalid-json", "syntax.json", '{"skelslice": 1,\n "units": "mm"\n "nodes": []}',
-         ("invalid JSON", "line 3, column 2", "Expecting ',' delimiter", '"nodes"')),
-    Case("trailing-comma", "comma.json", '{"skelslice": 1, "nodes": [[0, 0, 0],]}',
-         ("invalid JSON", "line 1, column 38")),
-    Case("deep-nesting", "deep.json", "[" * 100000 + "]" * 100000, ("nested too deeply",)),
-    Case("huge-integer-literal", "digits.json", '{"skelslice": ' + "9" * 5000 + "}", ("invalid JSON", "too many digits")),
-    Case("duplicate-key", "dup.json", scene()[:-1] + ', "nodes": []}', ("duplicate key", '"nodes"')),
-    Case("top-level-array", "list.json", "[1, 2, 3]", ("top level", "JSON object", "an array", "[1, 2, 3]")),
-    Case("top-level-string", "str.json", '"scene"', ("top level", "a string", '"scene"')),
-    Case("missing-version", "nover.json", scene(drop=("skelslice",)), ('"skelslice"', "missing")),
-    Case("version-3", "v3.json", scene(skelslice=3), ('"skelslice" = 3', "version 3", "reads versions 1, 2", "upgrade")),
-    Case("meshes-in-version-1", "v1mesh.json", scene(meshes=[{"path": "a.stl"}]),
-         ('"meshes" needs scene format version 2', '"skelslice": 2')),
-    Case("version-string", "vstr.json", scene(skelslice="1"), ('"skelslice" = "1"', "integer")),
-    Case("version-bool", "vbool.json", scene(skelslice=True), ('"skelslice" = true', "integer")),
-    Case("version-float", "vfloat.json", scene(skelslice=1.0), ('"skelslice" = 1.0', "integer")),
-    Case("unknown-key", "unk.json", scene(segment_radius=[[1, 1]] * 3),
-         ("unknown key", '"segment_radius"', 'did you mean "segment_radii"', '"x-"', '"metadata"')),
-    Case("unknown-keys", "unk2.json", scene(name="a", colour="red"), ("unknown keys", '"name"', '"colour"')),
-    Case("missing-units", "nounits.json", scene(drop=("units",)), ('missing key "units"',)),
-    Case("missing-nodes-segments", "nonodes.json", scene(drop=("nodes", "segments")),
-         ("missing keys", '"nodes"', '"segments"')),
-    Case("unknown-units", "ft.json", scene(units="ft"), ('"units" = "ft"', "not supported", '"mm"', '"in"')),
-    Case("units-case", "MM.json", scene(units="MM"), ('"units" = "MM"', '"mm"')),
-    Case("units-number", "u1.json", scene(units=1), ('"units" = 1',)),
-    Case("units-overflow", "uover.json", scene(units="m", nodes=[[1e306, 0, 0]] + BASE["nodes"][1:]),
-         ("overflow", "from m to mm")),
-    # --- numbers
-    Case("nan-node", "nan.json", with_node(1, [0, 0, float("nan")]), ("nodes[1][2] = NaN", "not a finite number")),
-    Case("inf-radius", "inf.json", scene(radii=[1, 1, float("inf"), 1]), ("radii[2] = Infinity", "not a finite")),
-    Case("neg-inf-segment-radius", "ninf.json",
-         scene(segment_radii=[[1, 1], [1, float("-inf")], [1, 1]]), ("segment_radii[1][1] = -Infinity", "finite")),
-    Case("overflow-literal", "1e999.json", scene().replace('"nodes": [[0, 0, 0]', '"nodes": [[1e999, 0, 0]'),
-         ("nodes[0][0] = Infinity", "not a finite")),
-    Case("huge-int", "bigint.json", scene().replace('"nodes": [[0, 0, 0]', '"nodes": [[1' + "0" * 400 + ", 0, 0]"),
-         ("nodes[0][0] = 1000", "too large")),
-    Case("bool-coordinate", "bool.json", with_node(2, [10, True, 10]), ("nodes[2][1] = true", "a boolean", "not a number")),
-    Case("string-coordinate", "strnum.json", with_node(0, ["1.5", 0, 0]), ('nodes[0][0] = "1.5"', "a string", "not a number")),
-    Case("null-coordinate", "null.json", with_node(0, [None, 0, 0]), ("nodes[0][0] is null", "not a number")),
-    Case("string-radius", "strr.json", scene(radii=[1, "0.5", 1, 1]), ('radii[1] = "0.5"', "a string")),
-    # --- shapes
-    Case("node-2-coords", "short.json", with_node(3, [1, 2]), ("nodes[3] = [1, 2]", "2 numbers", "[x, y, z]")),
-    Case("node-4-coords", "long.json", with_node(0, [1, 2, 3, 4]), ("nodes[0] = [1, 2, 3, 4]", "4 numbers")),
-    Case("node-not-array", "nodenum.json", with_node(1, 5), ("nodes[1] = 5", "a number", "[x, y, z]")),
-    Case("nodes-not-array", "nodesobj.json", scene(nodes={"a": 1}), ('"nodes" = {"a": 1}', "an object", "array")),
-    Case("segments-not-array", "segsstr.json", scene(segments="0-1"), ('"segments" = "0-1"', "a string")),
-    Case("segment-3-entries", "seg3.json", with_segment(0, [0, 1, 2]), ("segments[0] = [0, 1, 2]", "3 entries", "[i, j]")),
-    Case("segment-not-array", "segnum.json", with_segment(2, 7), ("segments[2] = 7", "a number")),
-    Case("radii-not-array", "radnum.json", scene(radii=1.0), ('"radii" = 1.0', "array")),
-    Case("segment-radii-not-pair", "srpair.json", scene(segment_radii=[[1, 1], [1], [1, 1]]),
-         ("segment_radii[1] = [1]", "1 number;", "[r_i, r_j]")),
-    Case("radii-length", "rlen.json", scene(radii=[1, 1, 1]), ('"radii" has 3 entries', "4 nodes")),
-    Case("segment-radii-length", "srlen.json", scene(segment_radii=[[1, 1], [1, 1]]),
-         ('"segment_radii" has 2 entries', "3 segments")),
-    # --- values
-    Case("zero-radius", "r0.json", scene(radii=[1, 0, 1, 1]), ("radii[1] = 0", "> 0")),
-    Case("negative-segment-radius", "rneg.json", scene(segment_radii=[[1, 1], [1, 1], [-0.5, 1]]),
-         ("segment_radii[2][0] = -0.5", "> 0")),
-    Case("index-out-of-range", "oor.json", with_segment(2, [2, 57]), ("segments[2][1] = 57", "out of range", "4 nodes")),
-    Case("negative-index", "negidx.json", with_segment(0, [-1, 1]), ("segments[0][0] = -1", "out of range")),
-    Case("float-index", "fidx.json", with_segment(1, [1.0, 2]), ("segments[1][0] = 1.0", "not an integer")),
-    Case("fraction-index", "fidx2.json", with_segment(1, [1, 2.5]), ("segments[1][1] = 2.5", "not an integer")),
-    Case("bool-index", "bidx.json", with_segment(1, [1, True]), ("segments[1][1] = true", "a boolean")),
-    Case("string-index", "sidx.json", with_segment(1, ["1", 2]), ('segments[1][0] = "1"', "a string")),
-    Case("self-loop", "loop.json", with_segment(1, [1, 1]), ("segments[1] = [1, 1]", "itself", "zero-length")),
-    Case("coincident-nodes", "coinc.json", with_node(1, [0, 0, 0]), ("segment 0", "(0, 1)", "zero length")),
-    Case("no-radii", "norad.json", scene(drop=("radii",)), ("no radii", '"radii"', '"segment_radii"', "--radius")),
-    Case("no-segments", "noseg.json", scene(segments=[], radii=[1, 1, 1, 1]), ('"segments" is empty',)),
-    # --- kernel
-    Case("odd-degree", "deg5.json", scene(kernel={"degree": 5}), ("kernel degree", "even", "5")),
-    Case("float-degree", "deg6f.json", scene(kernel={"degree": 6.0}), ("kernel degree", "6.0")),
-    Case("large-degree", "deg18.json", scene(kernel={"degree": 18}), ("kernel degree", "18")),
-    Case("bool-degree", "degb.json", scene(kernel={"degree": True}), ("kernel degree", "True")),
-    Case("sigma-1", "sig1.json", scene(kernel={"sigma": 1}), ("kernel sigma", "> 1", "1.0")),
-    Case("sigma-small", "sig05.json", scene(kernel={"degree": 6, "sigma": 0.5}), ("kernel sigma", "0.5")),
-    Case("sigma-nan", "signan.json", scene(kernel={"sigma": float("nan")}), ("kernel.sigma = NaN", "finite")),
-    Case("sigma-string", "sigstr.json", scene(kernel={"sigma": "2"}), ("kernel sigma", "'2'")),
-    Case("sigma-huge-int", "sigbig.json", scene().replace('"units"', '"kernel": {"sigma": 1' + "0" * 400 + '}, "units"'),
-         ("kernel.sigma = 1000", "too large")),
-    Case("unknown-kernel-key", "kkey.json", scene(kernel={"degree": 6, "sigmaa": 2}),
-         ("unknown kernel key", '"sigmaa"', 'did you mean "sigma"')),
-    Case("kernel-not-object", "karr.json", scene(kernel=[6, 2]), ('"kernel" = [6, 2]', "must be an object")),
-    # --- OBJ
-    Case("obj-empty", "empty.obj", "", ("empty",)),
-    Case("obj-face", "face.obj", "v 0 0 0 1\nv 1 0 0 1\nv 0 1 0 1\n\nf 1 2 3\n", ("line 5", "'f 1 2 3'", "faces")),
-    Case("obj-face-fo", "fo.obj", OBJ_OK + "fo 1 2 3\n", ("line 5", "'fo 1 2 3'", "faces")),
-    Case("obj-vertex-2", "v2.obj", "v 0 0 0 1\nv 1 2\nl 1 2\n", ("line 2", "'v 1 2'", "2 numbers", "v x y z radius")),
-    Case("obj-vertex-colours", "vc.obj", "v 0 0 0 1 0.5 0.5\nv 1 0 0\nl 1 2\n",
-         ("line 1", "6 numbers", "vertex colours")),
-    Case("obj-vertex-text", "vt.obj", "v 0 0 0 1\nv 1 a 0 1\nl 1 2\n", ("line 2", "'a' is not a number")),
-    Case("obj-vertex-nan", "vnan.obj", "v 0 0 0 1\nv 1 nan 0 1\nl 1 2\n", ("line 2", "'nan' is not a number")),
-    Case("obj-vertex-underscore", "vus.obj", "v 0 0 0 1\nv 1_0 0 0 1\nl 1 2\n", ("line 2", "'1_0' is not a number")),
-    Case("obj-vertex-overflow", "vinf.obj", "v 0 0 0 1\nv 1e999 0 0 1\nl 1 2\n", ("line 2", "'1e999'", "not a finite")),
-    Case("obj-radius-zero", "r0.obj", "v 0 0 0 1\nv 0 0 1 1\nv 1 0 0 0\nl 1 2 3\n", ("line 3", "radius 0", "> 0")),
-    Case("obj-radius-negative", "rneg.obj", "v 0 0 0 -0.5\nv 0 0 1 1\nl 1 2\n", ("line 1", "radius -0.5")),
-    Case("obj-line-one-index", "l1.obj", OBJ_OK + "l 2\n", ("line 5", "'l 2'", "at least two")),
-    Case("obj-index-zero", "l0.obj", OBJ_OK + "l 0 1\n", ("line 5", "index 0", "start at 1")),
-    Case("obj-index-out-of-range", "loor.obj", OBJ_OK + "# more\nl 3 9\n", ("line 6", "'l 3 9'", "vertex index 9", "3 vertices")),
-    Case("obj-relative-out-of-range", "lrel.obj", "v 0 0 0 1\nv 1 0 0 1\nl -5 -1\n",
-         ("line 3", "-5", "before the first vertex", "2 vertices")),
-    Case("obj-index-float", "lf.obj", OBJ_OK + "l 1 2.5\n", ("line 5", "'2.5' is not a vertex index")),
-    Case("obj-index-text", "lt.obj", OBJ_OK + "l 1 x\n", ("line 5", "'x' is not a vertex index")),
-    Case("obj-self-loop", "lself.obj", OBJ_OK + "l 2 2\n", ("line 5", "'l 2 2'", "zero-length", "vertex 2 is joined to itself")),
-    Case("obj-coincident", "lco.obj", "v 0 0 0 1\nv 1 1 1 1\nv 1 1 1 1\nl 1 2 3\n",
-         ("line 4", "zero-length", "vertices 2 and 3", "[1.0, 1.0, 1.0]")),
-    Case("obj-mixed-radii", "mixed.obj", "v 0 0 0 1\nv 0 0 10\nv 10 0 10 1\nl 1 2 3\n",
-         ("line 2", "vertex 2 has no radius", "--radius")),
-    Case("obj-no-radii", "norad.obj", "v 0 0 0\nv 0 0 10\nl 1 2\n", ("no vertex has a radius", "--radius")),
-    Case("obj-unknown-statement", "unk.obj", OBJ_OK + "foo 1 2\n", ("line 5", "unknown OBJ statement", "'foo'")),
-    Case("obj-point", "p.obj", OBJ_OK + "p 1\n", ("line 5", "'p 1'", "point")),
-    Case("obj-curve", "curv.obj", OBJ_OK + "curv 0 1 1 2\n", ("line 5", "free-form")),
-    Case("obj-no-lines", "nol.obj", "v 0 0 0 1\nv 1 0 0 1\n", ("no line elements",)),
-    Case("obj-not-utf8", "bin.obj", b"v 0 0 0 1\n\x80\x81\n", ("line 2", "UTF-8", "0x80")),
-]
-
-
-def make(case: Case, directory: Path) -> Path:
-    """Create the case's file in ``directory`` and return its path."""
-    path = directory / case.name
-    if case.content is DIR:
-        path.mkdir()
-    elif isinstance(case.content, bytes):
-        path.write_bytes(case.content)
-    elif case.content is not None:
-        path.write_text(case.content, encoding="utf-8")
-    return path
-
-
 def random_skeleton(rng, n=30, m=60, degree=6, sigma=2.0) -> Skeleton:
     nodes = rng.normal(size=(n, 3)) * 10 ** rng.uniform(-3, 3, size=(n, 1))
     a = rng.integers(0, n, m)

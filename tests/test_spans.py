@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from helpers import CASES, _node26
 from slicer import Skeleton
 from slicer.errors import GridError
 from slicer.tracer.grid import make_grid
 from slicer.tracer.slicing import slice_skeleton, trace, trim
-from test_trace import CASES, _node26
 
 SPAN_CASES = ["vertical_on_column", "horizontal_on_layer", "near_constant_taper", "cone_ratio_100",
               "thinner_than_pixel", "offset_5000mm", "node_26_struts"]

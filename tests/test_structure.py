@@ -9,7 +9,10 @@ Walks the sources with :mod:`ast` (no imports are executed):
 * no function-level import of the project's own modules;
 * Numba only in ``slicer/_kernels/`` and ``slicer/_jit.py``, thread counts
   only in ``slicer/_kernels/runtime/launch.py``;
-* temporary files and renames (atomic publication) only in ``slicer/atomic.py``.
+* temporary files and renames (atomic publication) only in ``slicer/atomic.py``;
+* no module in ``tests/`` imports a test module (``test_*``, ``conftest``): what tests
+  share lives in ``tests/helpers.py`` and ``tests/format_readers.py``, shared fixtures
+  in ``tests/conftest.py``.
 """
 from __future__ import annotations
 
@@ -296,3 +299,74 @@ def test_packages_keep_few_modules_at_the_top(package):
     assert len(modules) <= TOP_MODULES[package], modules
     folders = [d for d in top.iterdir() if d.is_dir() and d.name != "__pycache__"]
     assert folders and all((d / "__init__.py").exists() for d in folders), folders
+
+
+#: modules pytest loads itself (collected test files, conftest.py): a module of tests/ never imports one
+TESTS = ROOT / "tests"
+TEST_MODULES = {f.stem for f in TESTS.glob("test_*.py")} | {"conftest"}
+
+
+def _test_module(name: str, modules: set[str]) -> bool:
+    """``name`` (a module, or a path or file name passed to a loader) names one of ``modules``."""
+    return name.split(".")[0] in modules or Path(name).name in {f"{m}.py" for m in modules}
+
+
+def _test_imports(source: str, modules: set[str]) -> list[tuple[str, int]]:
+    """(name, line) of every import of one of ``modules`` in ``source``: ``import`` and
+    ``from ... import`` at any depth, and a module named in a call's arguments (loaded
+    by path or through :mod:`importlib`)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            names = [node.module] if node.module else [a.name for a in node.names]
+        elif isinstance(node, ast.Call):
+            names = [a.value for a in [*node.args, *(k.value for k in node.keywords)]
+                     if isinstance(a, ast.Constant) and isinstance(a.value, str)]
+        else:
+            continue
+        found += [(n, node.lineno) for n in names if _test_module(n, modules)]
+    return sorted(found, key=lambda f: f[1])
+
+
+def test_test_modules_do_not_import_each_other():
+    """No module in ``tests/`` imports a test module or ``conftest``: a piece two test
+    files need goes to ``tests/helpers.py`` (the format readers to
+    ``tests/format_readers.py``), a shared fixture to ``tests/conftest.py``."""
+    files = sorted(TESTS.glob("*.py"))
+    assert len(files) > 50 and "test_structure" in TEST_MODULES
+    bad = [f"{f.relative_to(ROOT)}:{line}: imports {name}" for f in files
+           for name, line in _test_imports(f.read_text(encoding="utf-8"), TEST_MODULES - {f.stem})]
+    assert bad == []
+
+
+def test_test_import_check_sees_every_form():
+    """Guard the check: plain, from-, nested and relative imports of a test module or
+    conftest, and loading one by name or path, are all reported; other modules are not."""
+    mods = {"test_a", "conftest"}
+    source = """
+import test_a
+import test_a.sub as s
+from test_a import x
+from conftest import missing_tool
+from . import test_a
+
+
+def f():
+    from test_a import y
+    importlib.import_module("test_a")
+    spec_from_file_location("m", Path(__file__).with_name("test_a.py"))
+    load_sibling("test_a")
+    load(path="tests/conftest.py")
+"""
+    assert [line for _, line in _test_imports(source, mods)] == [2, 3, 4, 5, 6, 10, 11, 12, 13, 14]
+    clean = """
+import helpers
+from helpers import run
+from format_readers import read_ctb
+import test_b
+tmp_path_factory.mktemp("test_a_out")
+print("see test_a")
+"""
+    assert _test_imports(clean, mods) == []

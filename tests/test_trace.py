@@ -6,7 +6,6 @@ order). Scenes are the stiff cases of the tracer issue.
 """
 from __future__ import annotations
 
-import itertools
 import json
 import subprocess
 import sys
@@ -16,10 +15,10 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from PIL import Image
 
+from helpers import CASES, Ray, _node26, _scene, check_ray
 from slicer import Skeleton
 from slicer.tracer.grid import make_grid
 from slicer.tracer.slicing import METHODS, slice_skeleton, trace
-from test_ray_unimodal import Ray, check_ray
 
 TOL = 1e-9
 
@@ -40,43 +39,6 @@ def assert_exact(skel, grid, method, bucket=16, **kw):
         f"{method}: {int(bad.sum())} voxels misclassified, e.g. at (k, j, i) = "
         f"{tuple(int(v) for v in np.argwhere(bad)[0])}, F = {f[tuple(np.argwhere(bad)[0])]!r}")
     return res, f
-
-
-def _scene(nodes, segs, radii):
-    return Skeleton(np.asarray(nodes, float), np.asarray(segs), np.asarray(radii, float))
-
-
-CASES = {
-    # a vertical strut whose axis is exactly a pixel column: the ray runs along the axis
-    "vertical_on_column": (_scene([[0, 0, 0], [0, 0, 3]], [[0, 1]], [[0.5, 0.5]]), 0.1, 0.1),
-    # horizontal struts lying exactly in a layer plane (z = 1.0 is a layer centre)
-    "horizontal_on_layer": (_scene([[-2, 0, 1.0], [2, 0, 1.0], [0, -2, 1.0], [0, 2, 1.0]],
-                                   [[0, 1], [2, 3]], [[0.4, 0.4], [0.3, 0.5]]), 0.1, 0.1),
-    "near_constant_taper": (_scene([[0, 0, 0], [2, 1, 2]], [[0, 1]], [[0.4, 0.4 * (1 + 1e-9)]]), 0.08, 0.07),
-    "cone_ratio_100": (_scene([[0, 0, 0], [0.5, 0.3, 3]], [[0, 1]], [[0.01, 1.0]]), 0.08, 0.08),
-    "thinner_than_pixel": (_scene([[0, 0, 0], [1.5, 0.7, 2.0], [0, 0, 0], [-1, 1, 1]],
-                                  [[0, 1], [2, 3]], [[0.03, 0.03], [0.02, 0.04]]), 0.1, 0.1),
-    "offset_5000mm": (_scene(np.array([[0, 0, 0], [1, 2, 2.5], [2, 0, 1]]) + 5000.0, [[0, 1], [1, 2]],
-                             [[0.3, 0.5], [0.5, 0.25]]), 0.1, 0.09),
-    "lone_short_strut": (_scene([[0, 0, 0], [0.3, 0, 0.2]], [[0, 1]], [[0.6, 0.6]]), 0.05, 0.05),
-}
-
-
-def _node26():
-    dirs = [d for d in itertools.product((-1, 0, 1), repeat=3) if d != (0, 0, 0)]
-    nodes = [[0.0, 0.0, 0.0]] + [list(1.6 * np.array(d, float)) for d in dirs]
-    segs = [[0, i + 1] for i in range(26)]
-    radii = [[0.25, 0.12]] * 26
-    return _scene(nodes, segs, radii)
-
-
-CASES["node_26_struts"] = (_node26(), 0.1, 0.1)
-# a strut whose support cone has a vertical generator (horizontal extent = sigma (r1 - r0),
-# A = 3e-17 for slicing rays) blended with a horizontal one: the support entry of its
-# rays used to come up to 0.1 of the field late, 10 voxels misclassified
-_H = 0.4 / np.sqrt(2)
-CASES["critical_taper_blend"] = (_scene([[0, 0, 0], [_H, _H, 1.0], [-1, 0.6, 0.3], [2, 0.6, 0.3]], [[0, 1], [2, 3]],
-                                        [[0.1, 0.3], [0.2, 0.2]]), 0.04, 0.04)
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))

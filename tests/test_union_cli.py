@@ -11,13 +11,13 @@ import trimesh
 from PIL import Image
 
 from formats import WRITERS
+from helpers import run
 from slicer import Skeleton
 from slicer.model.field import evaluate
 from slicer.parts.part import Part, PartMesh
 from slicer.printability import printed_widths
 from slicer.parts.meshes import make_mesh
 from slicer.parts.slicing import slice_part, slice_part_planned
-from test_cli_slice import run
 from validation.bulge import node
 
 PRINTER_FOR = {"goo": "elegoo-mars-4-ultra", "ctb": "elegoo-saturn", "ctb-v2": "creality-ld-002h"}

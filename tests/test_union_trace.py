@@ -14,6 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from helpers import CASES
 from slicer import Skeleton
 from slicer.errors import OptionError
 from slicer.model.field import evaluate
@@ -21,7 +22,6 @@ from slicer.tracer.grid import make_grid
 from slicer.tracer.slicing import slice_skeleton, trace
 from slicer.scale.tileplan import plan_slice
 from slicer.scale.tiles import slice_planned
-from test_trace import CASES
 from validation.bulge import node
 
 
