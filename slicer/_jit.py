@@ -29,6 +29,11 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+
+try:
+    import fcntl
+except ImportError:                 # pragma: no cover - not POSIX: Numba's own cache writes
+    fcntl = None
 from pathlib import Path
 
 from numba import config, njit
@@ -123,6 +128,31 @@ class GroupCacheLocator(_UserLocator):
 
 if CACHE and GroupCacheLocator not in _CacheImpl._locator_classes:
     _CacheImpl._locator_classes.insert(0, GroupCacheLocator)
+
+
+def _locked_save(save):
+    """``IndexDataCacheFile.save`` under an exclusive lock of the cache folder, across processes.
+
+    Numba names a new entry's data file after the first number free in the index it has just read, so two
+    processes compiling different versions of one function at once (test workers, process and Dask
+    workers, ``skelslice warmup``) could both write ``name.1.nbc`` and leave an index that points at the
+    other's machine code (numba/numba#4807). Under the lock, reading the index, choosing the name and
+    writing both files is one step.
+    """
+    def locked(self, key, data):
+        os.makedirs(self._cache_path, exist_ok=True)
+        with open(os.path.join(self._cache_path, ".skelslice.lock"), "a+b") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            try:
+                return save(self, key, data)
+            finally:
+                fcntl.flock(lock, fcntl.LOCK_UN)
+    locked._skelslice_locked = True
+    return locked
+
+
+if CACHE and fcntl is not None and not getattr(caching.IndexDataCacheFile.save, "_skelslice_locked", False):
+    caching.IndexDataCacheFile.save = _locked_save(caching.IndexDataCacheFile.save)
 
 # Threading layer: GNU OpenMP first. Kernels are launched from several Python
 # threads at once (the `threads` executor); with the TBB layer such a process

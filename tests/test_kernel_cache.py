@@ -96,3 +96,29 @@ def test_editing_another_group_keeps_a_compiled_kernel(tmp_path):
     _touch(tree / "slicer" / "_kernels" / "raster" / "counting_sort.py")
     assert _probe(tree, cache) == {"hits": 0, "misses": 1}
     assert len([d for d in cache.iterdir() if d.name.startswith("raster-")]) == 2
+
+
+SAVER = """
+import sys
+import slicer._jit  # noqa: F401  (puts the lock around Numba's cache writes)
+from numba.core import caching
+f = caching.IndexDataCacheFile(cache_path=sys.argv[1], filename_base="probe", source_stamp="stamp")
+who = sys.argv[2]
+for i in range(int(sys.argv[3])):
+    f.save((who, i), f"{who}:{i}")
+"""
+
+
+def test_processes_writing_one_cache_at_once_keep_every_entry(tmp_path):
+    """Several processes saving versions of one function into one cache folder at the same time: every
+    version is in the index, and each index entry leads to its own data (Numba alone may give two versions
+    one data file)."""
+    env = {k: v for k, v in os.environ.items() if k != "SKELSLICE_NUMBA_CACHE"}
+    procs = [subprocess.Popen([sys.executable, "-c", SAVER, str(tmp_path), f"p{w}", "40"], env=env)
+             for w in range(4)]
+    assert [p.wait(timeout=300) for p in procs] == [0, 0, 0, 0]
+    from numba.core import caching
+    f = caching.IndexDataCacheFile(cache_path=str(tmp_path), filename_base="probe", source_stamp="stamp")
+    for w in range(4):
+        for i in range(40):
+            assert f.load((f"p{w}", i)) == f"p{w}:{i}"

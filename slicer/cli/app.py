@@ -20,6 +20,7 @@ import threading
 import click
 
 from slicer.cli.commands import COMMANDS
+from slicer.cli.compile_notice import compile_notices
 from slicer.errors import SkelsliceError
 
 
@@ -89,8 +90,20 @@ def main() -> None:
     """skelslice: slice skeleton-based integral surfaces into printer layers."""
 
 
+def _with_compile_notices(cmd: click.Command) -> click.Command:
+    """``cmd`` printing the first-run compile messages on stderr, unless run with ``-q``."""
+    invoke = cmd.invoke
+
+    def run(ctx: click.Context):
+        with compile_notices(enabled=not ctx.params.get("quiet", False)):
+            return invoke(ctx)
+
+    cmd.invoke = run
+    return cmd
+
+
 for _cmd in COMMANDS:
-    main.add_command(_cmd)
+    main.add_command(_with_compile_notices(_cmd))
 
 if __name__ == "__main__":  # pragma: no cover
     main()

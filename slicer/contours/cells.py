@@ -43,7 +43,8 @@ from slicer._kernels.contours.cellbounds import PIECES, SLACK
 from slicer._kernels.contours.cellstate import IN, ONEDIR, OUT, SIMPLE, SMALL, THIN  # noqa: F401 (the leaf states, re-exported)
 from slicer._kernels.contours.chain import chain_rings, known_values, leaf_walks, next_in_group, pair_crossings
 from slicer._kernels.raster.counting_sort import DIGIT_BITS
-from slicer._kernels.contours.quadtree import CellSettings, classify_cells, plane_data, quadtree, ridge_cells
+from slicer.compiling import ABOUT, compiling
+from slicer._kernels.contours.quadtree import classify_cells, plane_data, quadtree, ridge_cells
 from slicer.errors import OptionError
 from slicer.model.field import plane_footprints, plane_grid, point_grid, support_boxes
 from slicer.model.skeleton import Skeleton
@@ -142,7 +143,7 @@ class _Bounds:
             bins = _bin_segments(skel, self.z, *root)
         self.plane = plane_data(self.table, bins, ids, _grid_tuple(plane_grid(skel, self.z)), self.z,
                                 skel.degree, skel.sigma, skel.normalisation)
-        self.settings = CellSettings(self.tol, self.thin, PIECES, COARSE_PIECES, FIELD_SLACK, SLACK)
+        self.settings = (self.tol, self.thin, PIECES, COARSE_PIECES, FIELD_SLACK, SLACK)
 
     def classify(self, cx: np.ndarray, cy: np.ndarray, r: np.ndarray):
         """State of each square cell, given by its centre and the radius ``r`` of
@@ -313,7 +314,8 @@ def guaranteed_rings(skel: Skeleton, z: float, tol: float = 1e-3, stats: dict | 
     rings = []
     ids = plane_segments(skel, z)
     if ids.size:
-        rings = _plane_rings(skel, float(z), tol, ids, root_cell, certified, st)
+        with compiling("the guaranteed contours", [quadtree], ABOUT["contours"]):
+            rings = _plane_rings(skel, float(z), tol, ids, root_cell, certified, st)
     if stats is not None:
         for key, v in st.items():
             stats[key] = stats.get(key, 0) + v

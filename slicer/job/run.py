@@ -16,6 +16,10 @@ from formats import WRITERS
 from formats.estimate import print_estimate
 
 from slicer._version import __version__
+from slicer._kernels.contours.quadtree import quadtree
+from slicer._kernels.trace.summed import trace_buckets
+from slicer._kernels.trace.union import trace_union_buckets
+from slicer.compiling import ABOUT, compiling
 from slicer.raster.antialias import output_layers
 from slicer.atomic import check_destination
 from slicer.arguments import resolvable, scene_reach
@@ -95,7 +99,27 @@ def run_slice(skel: Skeleton, out, job: SliceJob | None = None, *, progress: boo
     if out_opts.contours is not None:                      # ``--contours FILE`` beside the images
         check_destination(Path(out_opts.contours), out_opts.force)
     resolved = job.resolve(out)
-    if out_opts.contours is not None or getattr(WRITERS[resolved.fmt], "kind", "image") == "contours":
+    contours = out_opts.contours is not None or getattr(WRITERS[resolved.fmt], "kind", "image") == "contours"
+    with _first_compile(job.trace_options(resolved).blend, contours):
+        return _run_resolved(skel, out, job, resolved, contours, progress=progress, dry_run=dry_run, report=report,
+                             executor_info=executor_info)
+
+
+def _first_compile(blend: str, contours: bool):
+    """Announce, at the job's start, the compilation of the kernels it will use if they are not compiled yet
+    (:func:`slicer.compiling.compiling`): the tracer of ``blend``, and the guaranteed contours."""
+    what, entries, seconds = "the tracer", [trace_union_buckets if blend == "union" else trace_buckets], ABOUT["tracer"]
+    if contours:
+        what, seconds = what + " and the guaranteed contours", seconds + ABOUT["contours"]
+        entries.append(quadtree)
+    return compiling(what, entries, seconds)
+
+
+def _run_resolved(skel, out, job: SliceJob, resolved: ResolvedJob, contours: bool, *, progress, dry_run, report,
+                  executor_info) -> dict:
+    """:func:`run_slice` once the job is resolved."""
+    out_opts = job.output
+    if contours:
         resolvable(out_opts.contour_tol, "--contour-tol", scene_reach(skel))
     if isinstance(skel, Part) and not skel.has_meshes:     # a lattice alone: the lattice's own path
         skel = skel.skeleton

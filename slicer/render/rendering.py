@@ -32,6 +32,7 @@ import numpy as np
 from slicer._kernels.field.binning import bin_boxes
 from slicer._kernels.runtime.launch import launch_until_fits, numba_threads, one_item_per_thread
 from slicer._kernels.rays.support import kprime_max
+from slicer.compiling import ABOUT, compiling
 from slicer._kernels.render.walk import (NSHADE, NSTAT, ROOTS_FULL, ST_CUT, ST_EV_ISOLATE, ST_EV_REFINE, ST_EV_SHADE,
                               ST_EV_SPLIT, ST_ROOTS, ST_STATUS, pixel_rays, render_buckets)
 from slicer.arguments import MAX_COUNT, coordinates, integer, positive_number, resolvable, scene_reach
@@ -495,7 +496,7 @@ def render(skel: Skeleton, size=(700, 700), view: str = "iso", camera: str = "or
             roots = np.zeros((nb, cap))
             stats = np.zeros((nb, NSTAT), np.int64)
             # dynamic schedules hand out one bucket at a time (thread_order covers static ones)
-            with one_item_per_thread():
+            with compiling("the renderer", [render_buckets], ABOUT["renderer"]), one_item_per_thread():
                 render_buckets(pending, buckets, (int(W), int(H), cam.array), prim, opt, shade,
                                (rgba, count, ray_nroot, roots, stats))
             full = stats[:, ST_STATUS] == ROOTS_FULL

@@ -16,6 +16,7 @@ import numpy as np
 from slicer._kernels.runtime.launch import launch_until_fits, numba_threads, one_item_per_thread
 from slicer._kernels.rays.support import kprime_max
 from slicer._kernels.trace.summed import RUNS_FULL, trace_buckets
+from slicer.compiling import ABOUT, compiling
 from slicer._kernels.trace.union import trace_union_buckets
 from slicer.model.blend import require_traceable
 from slicer.tracer.buckets import DEFAULT_BUCKET, Buckets, build_buckets, thread_order
@@ -238,7 +239,7 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
     nevals = 0
     t0 = time.perf_counter()
     kern = trace_union_buckets if union else trace_buckets
-    with numba_threads(threads) as nthreads:
+    with compiling("the tracer", [kern], ABOUT["tracer"]), numba_threads(threads) as nthreads:
         sizes = np.diff(bk.offsets)
         for s in range(0, len(todo), batch):
             chunk = thread_order(todo[s:s + batch], sizes[todo[s:s + batch]], nthreads)

@@ -20,7 +20,6 @@ parents' data travel as arrays indexed by cell.
 from __future__ import annotations
 
 import math
-from collections import namedtuple
 
 import numpy as np
 from numba import prange
@@ -39,17 +38,14 @@ from slicer._kernels.contours.ridgebounds import FRAME_WORK, _frame_along, _near
 #: cells per task of a level's ``prange`` (each task owns one field scratch array)
 CHUNK = 64
 
-#: a plane's constants (:func:`plane_data`): the root grid of its segment bins (``x0, y0`` mm, square ``side``
-#: mm, ``nx`` by ``ny`` squares, discs up to radius ``rmax`` mm), the plane's height ``z`` (mm), the kernel's
-#: degree ``n``, support factor ``sigma`` and normalisation ``norm``, its slope and curvature bounds ``k1`` and
-#: ``k2`` (:func:`slicer._kernels.rays.support.kprime_max`,
-#: :func:`slicer._kernels.contours.cellbounds.kernel_curvature_max`) and ``inv_s2 = 1/sigma^2``
-PlaneConstants = namedtuple("PlaneConstants", ["x0", "y0", "side", "nx", "ny", "rmax", "z", "n", "sigma", "norm",
-                                               "k1", "k2", "inv_s2"])
-
-#: how cells are judged: the contour tolerance ``tol`` and the thinnest feature ``thin`` (mm), the disc
-#: bounds' pieces (``pieces``, ``coarse``) and the relative slacks of the field and of the bounds
-CellSettings = namedtuple("CellSettings", ["tol", "thin", "pieces", "coarse", "fslack", "bslack"])
+# A plane's constants (:func:`plane_data`) and the cell settings are plain tuples, read by unpacking them
+# whole (a parfor body takes tuples of scalars, not named tuples):
+#   constants = (x0, y0, side, nx, ny, rmax, z, n, sigma, norm, k1, k2, inv_s2): the root grid of the
+#     plane's segment bins (x0, y0 mm, square side mm, nx by ny squares, discs up to radius rmax mm), the
+#     plane's height z (mm), the kernel's degree n, support factor sigma and normalisation norm, its slope
+#     and curvature bounds k1 and k2 (kprime_max, kernel_curvature_max) and inv_s2 = 1/sigma^2;
+#   settings = (tol, thin, pieces, coarse, fslack, bslack): the contour tolerance and the thinnest feature
+#     (mm), the disc bounds' pieces, and the relative slacks of the field and of the bounds.
 
 # rows of a level's Taylor data, one column per cell: centre, field, gradient, the disc bounds G, H, U (the
 # parents' data of the next level), then the field at the four corners (NaN where not evaluated)
@@ -82,8 +78,8 @@ def plane_data(seg, bins, ids, pgrid, z, n, sigma, norm):
     n, sigma, norm = int(n), float(sigma), float(norm)
     arrays = (seg, np.ascontiguousarray(offsets, np.int64), np.ascontiguousarray(lists, np.int64),
               np.ascontiguousarray(ids, np.int64), po, pi, porig, pcell, pdims)
-    consts = PlaneConstants(float(x0), float(y0), float(side), int(nx), int(ny), float(rmax), float(z), n, sigma,
-                            norm, kprime_max(n, sigma, norm), kernel_curvature_max(n, sigma, norm), 1.0 / sigma**2)
+    consts = (float(x0), float(y0), float(side), int(nx), int(ny), float(rmax), float(z), n, sigma, norm,
+              kprime_max(n, sigma, norm), kernel_curvature_max(n, sigma, norm), 1.0 / sigma**2)
     return arrays, consts
 
 
@@ -100,8 +96,7 @@ def cell_scratch(pieces, coarse):
 def _bin_of(plane, cx, cy, r):
     """``(list, a, b)``: the segments that can reach the disc, ``list[a:b]``."""
     _, offsets, lists, ids, _, _, _, _, _ = plane[0]
-    c = plane[1]
-    x0, y0, side, nx, ny, rmax = c.x0, c.y0, c.side, c.nx, c.ny, c.rmax
+    x0, y0, side, nx, ny, rmax, _, _, _, _, _, _, _ = plane[1]
     if cx >= x0 and cx < x0 + nx * side and cy >= y0 and cy < y0 + ny * side and r <= rmax:
         c = square_of(cx, cy, x0, y0, side, nx, ny)
         return lists, offsets[c], offsets[c + 1]
@@ -113,8 +108,7 @@ def disc_at(plane, cx, cy, r, pieces, scratch):
     """``G, H, U`` of one disc (:func:`slicer._kernels.contours.cellbounds.disc_bounds`);
     ``scratch`` (:func:`cell_scratch`) lends its disc work area."""
     lst, a, b = _bin_of(plane, cx, cy, r)
-    c = plane[1]
-    z, n, sigma, norm, k1, k2 = c.z, c.n, c.sigma, c.norm, c.k1, c.k2
+    _, _, _, _, _, _, z, n, sigma, norm, k1, k2, _ = plane[1]
     seg, _, _, _, _, _, _, _, _ = plane[0]
     return _disc(seg, lst, a, b, cx, cy, z, r, n, sigma, norm, k1, k2, pieces, scratch[SCRATCH:])
 
@@ -125,7 +119,8 @@ def axis_at(plane, cx, cy, r):
     of the axis nearest its centre (:func:`slicer._kernels.contours.ridgebounds._nearest_axis`)."""
     lst, a, b = _bin_of(plane, cx, cy, r)
     seg, _, _, _, _, _, _, _, _ = plane[0]
-    return _nearest_axis(seg, lst, a, b, cx, cy, plane[1].z, r, plane[1].sigma)
+    _, _, _, _, _, _, z, _, sigma, _, _, _, _ = plane[1]
+    return _nearest_axis(seg, lst, a, b, cx, cy, z, r, sigma)
 
 
 @inline_kernel
@@ -134,8 +129,7 @@ def frame_at(plane, cx, cy, r, ux, uy, scratch):
     :func:`slicer._kernels.contours.ridgebounds.ridge_bounds`); ``scratch``
     (:func:`cell_scratch`) lends its disc work area."""
     lst, a, b = _bin_of(plane, cx, cy, r)
-    c = plane[1]
-    z, n, sigma, norm, k1 = c.z, c.n, c.sigma, c.norm, c.k1
+    _, _, _, _, _, _, z, n, sigma, norm, k1, _, _ = plane[1]
     seg, _, _, _, _, _, _, _, _ = plane[0]
     return _frame_along(seg, lst, a, b, cx, cy, z, r, ux, uy, n, sigma, norm, k1, scratch[SCRATCH:])
 
@@ -174,8 +168,7 @@ def convex_across(plane, cx, cy, r, ux, uy, gx0, gy0, G, fslack, scratch):
 def field_at(plane, x, y, scratch):
     """Field and in-plane gradient ``(f, gx, gy)`` at ``(x, y, z)``."""
     seg, _, _, _, po, pi, porig, pcell, pdims = plane[0]
-    c = plane[1]
-    z, n, norm, inv_s2 = c.z, c.n, c.norm, c.inv_s2
+    _, _, _, _, _, _, z, n, _, norm, _, _, inv_s2 = plane[1]
     f, gx, gy, _ = point_field(seg, po, pi, porig, pcell, pdims, n // 2, inv_s2, norm, True, scratch, x, y, z)
     return f, gx, gy
 
@@ -184,8 +177,7 @@ def field_at(plane, x, y, scratch):
 def value_at(plane, x, y, scratch):
     """Field at ``(x, y, z)`` (no gradient)."""
     seg, _, _, _, po, pi, porig, pcell, pdims = plane[0]
-    c = plane[1]
-    z, n, norm, inv_s2 = c.z, c.n, c.norm, c.inv_s2
+    _, _, _, _, _, _, z, n, _, norm, _, _, inv_s2 = plane[1]
     return point_field(seg, po, pi, porig, pcell, pdims, n // 2, inv_s2, norm, False, scratch, x, y, z)[0]
 
 
@@ -226,7 +218,8 @@ def ridge_at(plane, cx, cy, r, f0, gx0, gy0, G, thin2, fslack, scratch):
     -------
     state, evaluations
     """
-    if plane[1].n < 4:     # degree 2: no second-derivative bound (ridge_bounds), no crest cell
+    _, _, _, _, _, _, _, n, _, _, _, _, _ = plane[1]
+    if n < 4:     # degree 2: no second-derivative bound (ridge_bounds), no crest cell
         return -1, 0
     ux, uy = axis_at(plane, cx, cy, r)
     convex, ev = convex_across(plane, cx, cy, r, ux, uy, gx0, gy0, G, fslack, scratch)
@@ -309,7 +302,8 @@ def _cell(plane, cx, cy, rr, box, k, kind, parents, crests, settings, scratch):
     if pcx.shape[0] == 0:
         # int(): a constant argument is a type of its own to Numba (one more compiled copy)
         return _classified(plane, cx, cy, rr, box, int(CHEAP), 0.0, 0.0, 0.0, crests, settings, scratch)
-    st = settle_one(pf[k], pgx[k], pgy[k], pG[k], pH[k], rr, cx - pcx[k], cy - pcy[k], settings.fslack)
+    _, _, _, _, fslack, _ = settings
+    st = settle_one(pf[k], pgx[k], pgy[k], pG[k], pH[k], rr, cx - pcx[k], cy - pcy[k], fslack)
     if st >= 0:
         return st, np.inf, 0.0, 0.0, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0, (np.nan, np.nan, np.nan, np.nan)
     return _classified(plane, cx, cy, rr, box, kind, pG[k], pH[k], pU[k], crests, settings, scratch)
@@ -379,7 +373,8 @@ def _level_cells(plane, level, parents, settings, out, j0, j1):
     """Cells ``j0:j1`` of :func:`quadtree_level` into ``out = (state, kappa,
     sx, sy, taylor, evaluations)``, ``level = (ix, iy, x0, y0, s, rr, kind,
     crests)``, with one work array (:func:`cell_scratch`)."""
-    _cells_into(plane, level, parents, settings, out, j0, j1, np.empty(cell_scratch(settings.pieces, settings.coarse)))
+    _, _, pieces, coarse, _, _ = settings
+    _cells_into(plane, level, parents, settings, out, j0, j1, np.empty(cell_scratch(pieces, coarse)))
 
 
 @unrefcounted_kernel
