@@ -42,7 +42,7 @@ from slicer.errors import GridError
 from slicer.scale.executors import SerialExecutor, map_ordered, open_executor
 from slicer.scale.executors import executor_info as describe
 from slicer.model.field import support_boxes
-from slicer.tracer.grid import SliceGrid
+from slicer.tracer.grid import SliceGrid, make_grid
 from slicer.model.skeleton import Skeleton
 from slicer.tracer.slicing import SliceResult, trace, trim
 from slicer.scale.tileplan import (TilePlan, auto_budget, current_rss, format_size, parse_size, plan_job, plan_slice,
@@ -302,9 +302,19 @@ def slice_planned(skel: Skeleton, pixel_size: float, pixel_size_y: float | None 
     return res
 
 
+def _compile_before_workers(skel: Skeleton, opts: TraceOptions) -> None:
+    """Compile the tracer in this process before worker processes start (a tiny trace of one strut with the
+    job's options): the workers on this machine then load it from the compiled cache, one compile per
+    machine instead of one per worker (docs/scale.md, "A cold machine")."""
+    one = Skeleton([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]], [[0, 1]], [[0.5, 0.5]], degree=skel.degree, sigma=skel.sigma)
+    trace(one, make_grid(one.support_bounds(), 0.25), **{**opts.trace_kwargs(), "threads": 1})
+
+
 def _run_plan(skel, plan: TilePlan, opts: TraceOptions, ex, info, progress):
     if ex is None:
         ex = SerialExecutor()
+    if info is not None and info.kind in ("processes", "dask"):
+        _compile_before_workers(skel, opts)
     task_threads = info.task_threads if info is not None else None
     runner = _Runner(skel, plan, opts, ex, task_threads, progress)
     g = plan.grid
