@@ -87,6 +87,38 @@ def _join_rows(start, stop, first, h, ext, parent):
 
 
 @kernel
+def joined_runs(mask, eight):
+    """The row runs of a layer's non-zero pixels, joined into connected regions.
+
+    Parameters
+    ----------
+    mask : (h, w) uint8
+    eight : bool
+        8-connectivity (runs touching at a corner join); else 4-connectivity.
+
+    Returns
+    -------
+    start, stop : (n,) int64
+        Column range ``[start, stop)`` of each run, row after row.
+    first : (h + 1,) int64
+        Index of each row's first run; ``first[h] = n``.
+    parent : (n,) int64
+        Union-find forest of the runs; a region's root is its lowest run index (:func:`_root`).
+    """
+    h = mask.shape[0]
+    n = _count_runs(mask)
+    start = np.empty(n, np.int64)
+    stop = np.empty(n, np.int64)
+    first = np.empty(h + 1, np.int64)
+    _find_runs(mask, start, stop, first)
+    parent = np.empty(n, np.int64)
+    for i in range(n):
+        parent[i] = i
+    _join_rows(start, stop, first, h, 1 if eight else 0, parent)
+    return start, stop, first, parent
+
+
+@kernel
 def label_layer(mask, eight, labels):
     """Label the connected regions of a layer's non-zero pixels.
 
@@ -107,15 +139,8 @@ def label_layer(mask, eight, labels):
         Number of regions.
     """
     h, w = mask.shape
-    n = _count_runs(mask)
-    start = np.empty(n, np.int64)
-    stop = np.empty(n, np.int64)
-    first = np.empty(h + 1, np.int64)
-    _find_runs(mask, start, stop, first)
-    parent = np.empty(n, np.int64)
-    for i in range(n):
-        parent[i] = i
-    _join_rows(start, stop, first, h, 1 if eight else 0, parent)
+    start, stop, first, parent = joined_runs(mask, eight)
+    n = start.shape[0]
     region = np.full(n, -1, np.int64)
     m = 0
     for i in range(n):                  # roots are the lowest run index of their tree
