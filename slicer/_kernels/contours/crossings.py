@@ -67,7 +67,8 @@ def solve_one(fld, a, d, fab, slope, tol, slack, scratch):
     length = seg_length(d)
     tol_t = tol / length if length > 0.0 else 1.0
     reach_t = reach_of(slope, length)
-    state, bracketed, open_ = bracket_start(fab[0], fab[1], length, tol, reach_t, slack)
+    fa, fb = fab
+    state, bracketed, open_ = bracket_start(fa, fb, length, tol, reach_t, slack)
     it = 0
     while open_ and it < MAX_ITER:
         it += 1

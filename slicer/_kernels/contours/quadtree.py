@@ -560,8 +560,9 @@ def quadtree(plane, root, levels, inherit_side, settings):
     slope = np.empty((nl, 2))
     slope[:, 0] = LSX[:nl]
     slope[:, 1] = LSY[:nl]
+    KX, KY, KF = known
     return (LX[:nl].copy(), LY[:nl].copy(), LS[:nl].copy(), LST[:nl].copy(), LK[:nl].copy(), slope, cells,
-            evaluations, known[0][:nk].copy(), known[1][:nk].copy(), known[2][:nk].copy())
+            evaluations, KX[:nk].copy(), KY[:nk].copy(), KF[:nk].copy())
 
 
 @parallel_kernel

@@ -43,9 +43,11 @@ def chord_distance(fld, p, q, z, scratch):
     any is NaN): on a chord across varying curvature the largest deviation
     need not be at the midpoint."""
     worst = 0.0
+    px, py = p
+    qx, qy = q
     for k in range(3):
         fr = 0.25 * (k + 1)
-        d = distance_at(fld, p[0] + fr * (q[0] - p[0]), p[1] + fr * (q[1] - p[1]), z, scratch)[0]
+        d = distance_at(fld, px + fr * (qx - px), py + fr * (qy - py), z, scratch)[0]
         worst = d if k == 0 else np_maximum(worst, d)
     return worst
 

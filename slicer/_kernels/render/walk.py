@@ -66,6 +66,14 @@ SH_LIGHT, SH_FRONT, SH_BACK, SH_AMB, SH_DIFF, SH_SPEC, SH_SHINE, SH_ALPHA, SH_MA
     0, 3, 6, 9, 10, 11, 12, 13, 14, 15
 NSHADE = 17
 
+# the camera array ``cam`` (module docstring): origin, the steps along a row and down a column, the
+# direction, and the projection (0 orthographic, 1 perspective)
+(CAM_OX, CAM_OY, CAM_OZ, CAM_EXX, CAM_EXY, CAM_EXZ, CAM_EYX, CAM_EYY, CAM_EYZ, CAM_DX, CAM_DY, CAM_DZ,
+ CAM_PERSPECTIVE) = range(13)
+# a pixel's evaluation counts (``counts`` of :func:`render_ray`): isolation, refinement, shading, rays the
+# opacity cut-off stopped, and the isolation evaluations spent splitting ambiguous pieces
+N_ISOLATE, N_REFINE, N_SHADE, N_CUT, N_SPLIT = range(5)
+
 
 @unrefcounted_kernel
 def pixel_ray(cam, i, j):
@@ -78,16 +86,16 @@ def pixel_ray(cam, i, j):
     """
     u = i + 0.5
     v = j + 0.5
-    if cam[12] == 0.0:
-        ox = cam[0] + u * cam[3] + v * cam[6]
-        oy = cam[1] + u * cam[4] + v * cam[7]
-        oz = cam[2] + u * cam[5] + v * cam[8]
-        return ox, oy, oz, cam[9], cam[10], cam[11]
-    dx = cam[9] + u * cam[3] + v * cam[6]
-    dy = cam[10] + u * cam[4] + v * cam[7]
-    dz = cam[11] + u * cam[5] + v * cam[8]
+    if cam[CAM_PERSPECTIVE] == 0.0:
+        ox = cam[CAM_OX] + u * cam[CAM_EXX] + v * cam[CAM_EYX]
+        oy = cam[CAM_OY] + u * cam[CAM_EXY] + v * cam[CAM_EYY]
+        oz = cam[CAM_OZ] + u * cam[CAM_EXZ] + v * cam[CAM_EYZ]
+        return ox, oy, oz, cam[CAM_DX], cam[CAM_DY], cam[CAM_DZ]
+    dx = cam[CAM_DX] + u * cam[CAM_EXX] + v * cam[CAM_EYX]
+    dy = cam[CAM_DY] + u * cam[CAM_EXY] + v * cam[CAM_EYY]
+    dz = cam[CAM_DZ] + u * cam[CAM_EXZ] + v * cam[CAM_EYZ]
     s = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
-    return cam[0], cam[1], cam[2], dx * s, dy * s, dz * s
+    return cam[CAM_OX], cam[CAM_OY], cam[CAM_OZ], dx * s, dy * s, dz * s
 
 
 @parallel_kernel
@@ -286,8 +294,8 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, ij, prim, opt, shade, bufs, rows,
         ``(rgb, roots, out4, counts)``: (3,) work array; (cap,) float64, the
         pixel's crossings, sorted (only with ``keep_roots``); (4,) float64,
         premultiplied RGB and alpha, out; (5,) int64, evaluations added:
-        isolation, refinement, shading; 1 added to ``counts[3]`` when the
-        opacity cut-off stopped the ray; ``counts[4]``: the part of the
+        isolation, refinement, shading; 1 added to ``counts[N_CUT]`` when the
+        opacity cut-off stopped the ray; ``counts[N_SPLIT]``: the part of the
         isolation evaluations spent splitting ambiguous pieces.
 
     Returns
@@ -297,26 +305,37 @@ def render_ray(seg, boxes2d, ids, i0, i1, cam, ij, prim, opt, shade, bufs, rows,
     """
     n, sigma, norm, kmax = prim
     scratch, hprim, hrec, order, bps, sarr, mstat, st_t = bufs
-    ray = pixel_ray(cam, ij[0], ij[1])
+    i, j = ij
+    ray = pixel_ray(cam, i, j)
     nh = _pixel_hits(seg, boxes2d, ids, i0, i1, ij, ray, prim, hprim, hrec)
+    ct, _, _ = cache
     for r in range(nh):
-        cache[0][r] = math.nan
+        ct[r] = math.nan
     sort_hits(hrec, order, nh)
     walk = (seg, hprim, hrec, sarr, ray, (n // 2, 1.0 / (sigma * sigma), norm), scratch, rows, cache, mstat)
     # composite so far: premultiplied RGB, alpha, opacity cut passed, crossings, ray finished
     acc = (0.0, 0.0, 0.0, 0.0, False, 0, False)
     a = 0
-    while a < nh and not acc[6]:
+    while a < nh and not _finished(acc):
         b, cs, ce = next_cluster(hrec, order, a, nh)
         acc = _render_cluster(walk, order, bps, st_t, (a, b, max(cs, 0.0), ce), opt, shade, out, acc)
         a = b
-    out4 = out[2]
-    if acc[5] >= 0:
-        out4[0] = acc[0]
-        out4[1] = acc[1]
-        out4[2] = acc[2]
-        out4[3] = acc[3]
-    return acc[5]
+    _, _, out4, _ = out
+    acc_r, acc_g, acc_b, acc_a, _, nroot, _ = acc
+    if nroot >= 0:
+        out4[0] = acc_r
+        out4[1] = acc_g
+        out4[2] = acc_b
+        out4[3] = acc_a
+    return nroot
+
+
+@inline_kernel
+def _finished(acc):
+    """Whether the composite ``acc`` (:func:`render_ray`) ends the ray: the opacity cut-off, the first
+    crossing of an opaque render, or a full roots buffer."""
+    _, _, _, _, _, _, done = acc
+    return done
 
 
 @unrefcounted_kernel
@@ -328,8 +347,9 @@ def _pixel_hits(seg, boxes2d, ids, i0, i1, ij, ray, prim, hprim, hrec):
     exact test."""
     n, sigma, norm, kmax = prim
     ox, oy, oz, dx, dy, dz = ray
-    u = ij[0] + 0.5
-    v = ij[1] + 0.5
+    i, j = ij
+    u = i + 0.5
+    v = j + 0.5
     nh = 0
     for r in range(i0, i1):
         g = ids[r]
@@ -360,12 +380,12 @@ def _render_cluster(walk, order, bps, st_t, clu, opt, shade, out, acc):
     seg, hprim, hrec, sarr, ray, kp, scratch, rows, cache, mstat = walk
     st_f, st_fh, st_fp = rows
     tol, strict, bisect, cut_support, lazy, keep_roots = opt
-    counts = out[3]
+    _, _, _, counts = out
     a, b, cs, ce = clu
     cur = st_f.shape[0] - 1
     nb = cluster_breakpoints(hrec, order, a, b, cs, ce, cut_support, cs, cs, bps)
     piece = -1
-    while piece < nb - 2 and not acc[6]:
+    while piece < nb - 2 and not _finished(acc):
         piece += 1
         ta = bps[piece]
         tb = bps[piece + 1]
@@ -378,21 +398,21 @@ def _render_cluster(walk, order, bps, st_t, clu, opt, shade, out, acc):
                 # inside at ta: no crossing as far as the unimodal lower bound reaches
                 jj, ne = leap_chain(seg, hprim, hrec, sarr, ns, (st_f, st_fp), cur, ray, bps, piece, nb, fcur,
                                     kp, scratch, cache)
-                counts[0] += ne
+                counts[N_ISOLATE] += ne
                 if jj > piece:
-                    counts[0] += ne1
+                    counts[N_ISOLATE] += ne1
                     piece = jj - 1
                     continue
             _, ne2 = eval_along(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, st_f, st_fp, 0, cache)
         else:
             settled, ne = lazy_ends(seg, hprim, hrec, sarr, ns, ray, ta, tb, kp, scratch, rows, cur, 0, mstat, cache)
-            counts[0] += ne
+            counts[N_ISOLATE] += ne
             if settled:
                 continue   # no crossing on the piece
             # an ambiguous piece is walked from the exact values at its ends
             fcur, ne1 = complete_row(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, rows, cur, cache)
             _, ne2 = complete_row(seg, hprim, hrec, sarr, ns, ray, tb, kp, scratch, rows, 0, cache)
-        counts[0] += ne1 + ne2
+        counts[N_ISOLATE] += ne1 + ne2
         acc = _render_piece(walk, ns, st_t, (ta, tb, fcur), opt, shade, out, acc)
     return acc
 
@@ -413,12 +433,12 @@ def _render_piece(walk, ns, st_t, piece, opt, shade, out, acc):
     seg, hprim, hrec, sarr, ray, kp, scratch, rows, cache, mstat = walk
     st_f, st_fh, st_fp = rows
     tol, strict, bisect, cut_support, lazy, keep_roots = opt
-    counts = out[3]
+    _, _, _, counts = out
     tcur, tb, fcur = piece
     cur = st_f.shape[0] - 1
     st_t[0] = tb
     sp = 1
-    while sp > 0 and not acc[6]:
+    while sp > 0 and not _finished(acc):
         p = sp - 1
         te = st_t[p]
         fe, d0, d1 = piece_ends(st_f, st_fp, cur, p, ns)
@@ -430,8 +450,8 @@ def _render_piece(walk, ns, st_t, piece, opt, shade, out, acc):
         if not settle and mono == 0 and width > tol and p + 2 <= MAX_STACK and tm > tcur and tm < te:
             # ambiguous: split at the middle; the right part keeps slot p
             _, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, tm, kp, scratch, st_f, st_fp, p + 1, cache)
-            counts[0] += ne
-            counts[4] += ne
+            counts[N_ISOLATE] += ne
+            counts[N_SPLIT] += ne
             st_t[p + 1] = tm
             sp = p + 2
             continue
@@ -463,7 +483,7 @@ def _add_crossing(walk, ns, bracket, opt, shade, out, acc):
     # where the crossing lies is needed only to keep it: shading takes the gradient at the last point evaluated
     t, gx, gy, gz, ne, have = refine_root(seg, hprim, sarr, ns, ray, bracket, (tol, bisect, keep_roots), kp,
                                           scratch)
-    counts[1] += ne
+    counts[N_REFINE] += ne
     if keep_roots:
         if nroot >= roots.shape[0]:
             return acc_r, acc_g, acc_b, acc_a, cut, -1, True
@@ -472,8 +492,9 @@ def _add_crossing(walk, ns, bracket, opt, shade, out, acc):
     if not cut:
         if not have:
             _, gx, gy, gz, _ = field_grad_along(seg, hprim, sarr, ns, ray, t, kp, scratch)
-            counts[2] += ns
-        shade_crossing(shade, ray[3], ray[4], ray[5], gx, gy, gz, rgb)
+            counts[N_SHADE] += ns
+        _, _, _, dx, dy, dz = ray
+        shade_crossing(shade, dx, dy, dz, gx, gy, gz, rgb)
         alpha = 1.0 if shade[SH_OPAQUE] != 0.0 else shade[SH_ALPHA]
         wgt = (1.0 - acc_a) * alpha
         acc_r += wgt * rgb[0]
@@ -482,7 +503,7 @@ def _add_crossing(walk, ns, bracket, opt, shade, out, acc):
         acc_a += wgt
         if shade[SH_OPAQUE] != 0.0 or (shade[SH_MAXA] < 1.0 and acc_a >= shade[SH_MAXA]):
             cut = True
-            counts[3] += 1
+            counts[N_CUT] += 1
             done = not keep_roots
     return acc_r, acc_g, acc_b, acc_a, cut, nroot, done
 
@@ -571,11 +592,11 @@ def _render_bucket(q, bidx, bk, screen, prim, opt, shade, out):
             if keep_roots:
                 used += nr
     stats[q, ST_STATUS] = status
-    stats[q, ST_EV_ISOLATE] = counts[0]
-    stats[q, ST_EV_REFINE] = counts[1]
-    stats[q, ST_EV_SHADE] = counts[2]
+    stats[q, ST_EV_ISOLATE] = counts[N_ISOLATE]
+    stats[q, ST_EV_REFINE] = counts[N_REFINE]
+    stats[q, ST_EV_SHADE] = counts[N_SHADE]
     stats[q, ST_ROOTS] = nroot_tot
-    stats[q, ST_CUT] = counts[3]
-    stats[q, ST_EV_SPLIT] = counts[4]
+    stats[q, ST_CUT] = counts[N_CUT]
+    stats[q, ST_EV_SPLIT] = counts[N_SPLIT]
     keep_alive(own)
     keep_alive(own_more)

@@ -156,13 +156,14 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, xy, col, prim, opt, bufs, rows, 
     n, sigma, norm, kmax = prim
     strict, cut_support, lazy, spans, span_tol = opt
     scratch, hprim, hrec, order, bps, sarr, mstat = bufs
-    ct = cache[0]
+    ct, _, _ = cache
+    px, py = xy
     zlo = z0 - 0.5 * h
     zhi = z0 + (K - 0.5) * h
-    nh = _ray_hits(seg, boxes, ids, i0, i1, xy[0], xy[1], prim, zlo, zhi, hprim, hrec, order)
+    nh = _ray_hits(seg, boxes, ids, i0, i1, px, py, prim, zlo, zhi, hprim, hrec, order)
     for r in range(nh):
         ct[r] = math.nan
-    walk = (seg, hprim, hrec, sarr, (xy[0], xy[1], 0.0, 0.0, 0.0, 1.0), (n // 2, 1.0 / (sigma * sigma), norm),
+    walk = (seg, hprim, hrec, sarr, (px, py, 0.0, 0.0, 0.0, 1.0), (n // 2, 1.0 / (sigma * sigma), norm),
             scratch, rows, cache, mstat)
     zs = (z0, h, K, zlo, zhi)
     opt = (strict, cut_support, lazy and not spans and not strict, spans, span_tol)
@@ -171,10 +172,12 @@ def trace_ray_interval(seg, boxes, ids, i0, i1, xy, col, prim, opt, bufs, rows, 
     while a < nh:
         b, cs, ce = next_cluster(hrec, order, a, nh)
         tally = _trace_cluster(walk, order, bps, (a, b, cs, ce), zs, opt, stack, out, tally)
-        if tally[0] < 0:
+        nrun, _, _, _ = tally
+        if nrun < 0:
             break
         a = b
-    return tally[0], tally[1], tally[2]
+    nrun, nev, nx, _ = tally
+    return nrun, nev, nx
 
 
 @inline_kernel
@@ -202,6 +205,7 @@ def _trace_cluster(walk, order, bps, clu, zs, opt, stack, out, tally):
     z0, h, K, zlo, zhi = zs
     strict, cut_support, lazy, spans, span_tol = opt
     a, b, cs, ce = clu
+    rk0, rk1, cz = out
     nrun, nev, nx, inside = tally
     if first_centre(ce, z0, h, K) <= first_centre(cs, z0, h, K) and not (spans and ce > zlo and cs < zhi):
         return tally
@@ -227,7 +231,7 @@ def _trace_cluster(walk, order, bps, clu, zs, opt, stack, out, tally):
             fcur, ne = eval_along(seg, hprim, hrec, sarr, ns, ray, ta, kp, scratch, st_f, st_fp, cur, cache)
         nev += ne
         if spans and (fcur >= 1.0) != inside:   # only after a skipped stretch (below the grid): enter here
-            nx = _crossing(out[2], nx, ta)
+            nx = _crossing(cz, nx, ta)
             inside = not inside
         if not strict and not lazy and fcur >= 1.0 and j + 2 < nb:
             # inside at ta: settle as many breakpoints ahead as the unimodal lower bound proves inside at once
@@ -235,7 +239,7 @@ def _trace_cluster(walk, order, bps, clu, zs, opt, stack, out, tally):
                                 cache)
             nev += ne
             if jj > j:
-                nrun = _emit(k0, first_centre(bps[jj], z0, h, K) - 1, True, out[0], out[1], nrun, out[0].shape[0])
+                nrun = _emit(k0, first_centre(bps[jj], z0, h, K) - 1, True, rk0, rk1, nrun, rk0.shape[0])
                 tlast = bps[jj]
                 j = jj - 1
                 continue
@@ -246,7 +250,7 @@ def _trace_cluster(walk, order, bps, clu, zs, opt, stack, out, tally):
                                             (nrun, nev, nx, inside))
         tlast = tb
     if spans and inside:   # the rest of the cluster lies above the grid: leave at its top
-        nx = _crossing(out[2], nx, min(tlast, zhi))
+        nx = _crossing(cz, nx, min(tlast, zhi))
         inside = False
     return (nrun, nev, nx, inside) if nx >= 0 else (-1, nev, nx, inside)
 
@@ -580,14 +584,16 @@ def _traced_ray(method, ray, col, prim, opt, work, outs):
             n, sigma, norm, _ = prim
             bufs, _, _, _, active = work
             rk0, rk1, _, room = outs
+            scratch, _, _, _, _, _, _ = bufs
             nr, ne = trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, col, (n // 2, 1.0 / (sigma * sigma), norm),
-                                        bufs[0], active, rk0, rk1, room)
+                                        scratch, active, rk0, rk1, room)
             return nr, ne, 0
         return sampling
 
     def segment(method, ray, col, prim, opt, work, outs):
         seg, boxes, ids, i0, i1, px, py = ray
-        scratch, hprim, hrec, order, _, _, _ = work[0]
+        bufs, _, _, _, _ = work
+        scratch, hprim, hrec, order, _, _, _ = bufs
         rk0, rk1, _, room = outs
         nr, ne = trace_ray_segment(seg, boxes, ids, i0, i1, (px, py), col, prim, scratch, hprim, hrec, order, rk0, rk1,
                                    room)
