@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/compile_time.py [--baseline TREE] [--repeat N]
-                                      [--jobs contours trace] [--json out.json]
+                                      [--jobs contours trace render] [--kernels N] [--json out.json]
 
 Jobs:
 
@@ -13,8 +13,11 @@ Jobs:
     chord refinement): what the first contour output (``.cli``, ``.3mf``,
     ``--contours``, ``--aa exact``) of a fresh install waits for.
 ``trace``
-    The first ``slicer.tracer.slicing.slice_skeleton`` of the jellyfish sample at
+    The first ``slicer.slice_skeleton`` of the jellyfish sample at
     0.05 mm (the README's quick start).
+``render``
+    The first ``slicer.render`` of the jellyfish sample at 500 x 500 (the
+    README's ``render`` example).
 
 Each run is a fresh subprocess with ``PYTHONPATH`` set to the tree under test
 and an empty Numba cache folder of its own (``NUMBA_CACHE_DIR``), so every
@@ -45,7 +48,7 @@ sys.path.insert(0, str(HERE))
 
 from speed import byte_compile, trees_to_run  # noqa: E402  (as the speed benchmark does)
 
-JOBS = ("contours", "trace")
+JOBS = ("contours", "trace", "render")
 
 
 # ---------------------------------------------------------------- worker side
@@ -57,21 +60,47 @@ def _job(name: str):
         from slicer.contours import plane_contours
         skel = load_sample("octet_2x2x2")
         return lambda: plane_contours(skel, 5.0, 1e-3)
-    from slicer.tracer.slicing import slice_skeleton
+    from slicer import render, slice_skeleton      # the names both layouts have
     skel = load_sample("jellyfish")
+    if name == "render":
+        return lambda: render(skel, size=(500, 500))
     return lambda: slice_skeleton(skel, 0.05)
 
 
+def _per_kernel(buffer) -> dict:
+    """Seconds of each compiled function from Numba's compile events, its callees' compiles left out
+    (they nest: a callee compiles while its caller is typed)."""
+    own, stack = {}, []
+    for ts, ev in buffer:
+        f = ev.data["dispatcher"].py_func
+        name = f"{f.__module__}.{f.__qualname__}"
+        if ev.is_start:
+            stack.append([name, ts, 0.0])
+            continue
+        name, start, inner = stack.pop()
+        took = ts - start
+        own[name] = own.get(name, 0.0) + took - inner
+        if stack:
+            stack[-1][2] += took
+    return own
+
+
 def worker(argv) -> int:
-    """``--worker JOB``: time the job's first and second call; print JSON."""
+    """``--worker JOB``: time the job's first and second call; print JSON (with each kernel's own compile
+    seconds of the first call)."""
+    from numba.core import event
     t0 = time.perf_counter()
     call = _job(argv[0])
     t1 = time.perf_counter()
+    rec = event.RecordingListener()
+    event.register("numba:compile", rec)
     call()
     t2 = time.perf_counter()
+    event.unregister("numba:compile", rec)
     call()
     t3 = time.perf_counter()
-    print(json.dumps({"import_seconds": t1 - t0, "first_seconds": t2 - t1, "steady_seconds": t3 - t2}))
+    print(json.dumps({"import_seconds": t1 - t0, "first_seconds": t2 - t1, "steady_seconds": t3 - t2,
+                      "kernels": _per_kernel(rec.buffer)}))
     return 0
 
 
@@ -104,7 +133,7 @@ def measure(trees: dict, jobs, repeat: int, log=print) -> list[dict]:
                     warm = _run(job, tree, Path(tmp))
                 run = {"first_seconds": cold["first_seconds"], "steady_seconds": cold["steady_seconds"],
                        "compile_seconds": cold["first_seconds"] - cold["steady_seconds"],
-                       "cached_seconds": warm["first_seconds"]}
+                       "cached_seconds": warm["first_seconds"], "kernels": cold["kernels"]}
                 runs[(job, label)].append(run)
                 log(f"{job} {label} run {k + 1}: first {run['first_seconds']:.1f} s, "
                     f"steady {run['steady_seconds']:.2f} s, cached {run['cached_seconds']:.2f} s")
@@ -113,6 +142,9 @@ def measure(trees: dict, jobs, repeat: int, log=print) -> list[dict]:
         row = {"job": job, "tree": label, "runs": rs}
         for key in ("first_seconds", "compile_seconds", "cached_seconds"):
             row["median_" + key] = statistics.median(r[key] for r in rs)
+        names = {n for r in rs for n in r["kernels"]}
+        row["median_kernel_seconds"] = dict(sorted(
+            ((n, statistics.median(r["kernels"].get(n, 0.0) for r in rs)) for n in names), key=lambda x: -x[1]))
         rows.append(row)
     return rows
 
@@ -129,6 +161,19 @@ def table(rows, labels) -> str:
     return "\n".join(lines)
 
 
+def kernel_table(rows, label: str, most: int) -> str:
+    """Markdown table: per job, the kernels of tree ``label`` that take longest to compile (their own
+    seconds, callees apart) and their share of the job's compile seconds."""
+    lines = ["| job | kernel | seconds | share |", "|---|---|---|---|"]
+    for r in rows:
+        if r["tree"] != label:
+            continue
+        for name, sec in list(r["median_kernel_seconds"].items())[:most]:
+            lines.append(f"| {r['job']} | `{name.removeprefix('slicer._kernels.')}` | {sec:.1f} s | "
+                         f"{100 * sec / r['median_compile_seconds']:.0f} % |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--worker"]:
@@ -137,16 +182,20 @@ def main(argv=None) -> int:
     ap.add_argument("--baseline", type=Path, default=None, help="Another source tree to run (e.g. an older checkout).")
     ap.add_argument("--repeat", type=int, default=2, help="Runs per job and tree; the table shows the median.")
     ap.add_argument("--jobs", nargs="+", choices=JOBS, default=["contours"])
+    ap.add_argument("--kernels", type=int, default=10, help="Kernels listed per job in the per-kernel table.")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
-    if args.repeat < 1:
-        ap.error("--repeat must be >= 1")
+    if args.repeat < 1 or args.kernels < 0:
+        ap.error("--repeat must be >= 1 and --kernels >= 0")
     trees = trees_to_run(ap, args.baseline)
     sys.path.insert(0, str(ROOT))
     from validation import machine
 
     rows = measure(trees, args.jobs, args.repeat, log=lambda s: print(s, file=sys.stderr))
     print(table(rows, list(trees)))
+    if args.kernels:
+        print()
+        print(kernel_table(rows, "current", args.kernels))
     if args.json is not None:
         doc = {"benchmark": "compile_time", "command": machine.command_line("python benchmarks/compile_time.py", argv),
                "machine": machine.describe(), "repeat": args.repeat, "trees": list(trees), "rows": rows}
