@@ -17,8 +17,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import trimesh
+
 from slicer.arguments import choice
 from slicer.errors import OptionError
+from slicer.model.skeleton import Skeleton
+from slicer.scene.read import save_scene
 
 #: what each feature runs (``skelslice`` arguments; ``{dir}`` is a scratch folder holding ``scene.json``
 #: and ``box.stl``), and the kernels it compiles
@@ -57,11 +61,8 @@ class Warmed:
 
 def _scratch(folder: Path) -> None:
     """The tiny scene (a bent strut pair on the plate) and a small box mesh the features slice."""
-    from slicer.model.skeleton import Skeleton
-    from slicer.scene.read import save_scene
     save_scene(Skeleton([[0, 0, 0.8], [0, 0, 3], [1.5, 0, 4]], [[0, 1], [1, 2]], [[0.8, 0.6], [0.6, 0.4]]),
                folder / "scene.json")
-    import trimesh
     trimesh.creation.box(extents=(1.0, 1.0, 1.0)).apply_translation((0, 0, 2.0)).export(folder / "box.stl")
 
 
