@@ -26,8 +26,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import literally, prange, types
-from numba.extending import overload
+from numba import prange
 
 from slicer._jit import inline_kernel, kernel, parallel_kernel, unrefcounted_kernel
 from slicer._kernels.runtime.borrow import borrow, keep_alive
@@ -552,55 +551,6 @@ def trace_ray_segment(seg, boxes, ids, i0, i1, xy, col, prim, scratch, hprim, hr
     return nrun, nev
 
 
-def traced_ray(method, ray, col, prim, opt, work, outs):
-    """Runs ``(nr, evaluations, crossings)`` of one ray by the tracing ``method`` (a compile-time constant:
-    0 interval, 1 sampling, 2 segment tracing), with the arguments the three walks share.
-
-    ``ray = (seg, boxes, ids, i0, i1, px, py)``: the segment table, support boxes, the bucket's list
-    ``ids[i0:i1]`` and the ray's position (mm); ``col = (z0, h, K)``; ``prim`` and ``opt`` as
-    :func:`trace_buckets`; ``work = (bufs, rows, stack, cache, active)``: the work arrays
-    (:func:`_trace_bucket`); ``outs = (rk0, rk1, cz, room)``: where the runs and crossings go. Only the
-    chosen walk is compiled into the caller (:func:`_traced_ray`); ``nr < 0`` when the runs do not fit.
-    """
-    raise NotImplementedError("compiled code only")      # pragma: no cover
-
-
-@overload(traced_ray, inline="always")
-def _traced_ray(method, ray, col, prim, opt, work, outs):
-    """The walk of ``method`` (an integer literal: :func:`trace_buckets` makes it one), typed alone."""
-    if not isinstance(method, types.IntegerLiteral):
-        return None
-    if method.literal_value == 0:
-        def interval(method, ray, col, prim, opt, work, outs):
-            seg, boxes, ids, i0, i1, px, py = ray
-            bufs, rows, stack, cache, _ = work
-            rk0, rk1, cz, _ = outs
-            return trace_ray_interval(seg, boxes, ids, i0, i1, (px, py), col, prim, opt, bufs, rows, stack, cache,
-                                      (rk0, rk1, cz))
-        return interval
-    if method.literal_value == 1:
-        def sampling(method, ray, col, prim, opt, work, outs):
-            seg, boxes, ids, i0, i1, px, py = ray
-            n, sigma, norm, _ = prim
-            bufs, _, _, _, active = work
-            rk0, rk1, _, room = outs
-            scratch, _, _, _, _, _, _ = bufs
-            nr, ne = trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, col, (n // 2, 1.0 / (sigma * sigma), norm),
-                                        scratch, active, rk0, rk1, room)
-            return nr, ne, 0
-        return sampling
-
-    def segment(method, ray, col, prim, opt, work, outs):
-        seg, boxes, ids, i0, i1, px, py = ray
-        bufs, _, _, _, _ = work
-        scratch, hprim, hrec, order, _, _, _ = bufs
-        rk0, rk1, _, room = outs
-        nr, ne = trace_ray_segment(seg, boxes, ids, i0, i1, (px, py), col, prim, scratch, hprim, hrec, order, rk0, rk1,
-                                   room)
-        return nr, ne, 0
-    return segment
-
-
 @parallel_kernel
 def trace_buckets(method, buckets, first, bk, grid, prim, opt, out):
     """Trace every ray of the given buckets in parallel.
@@ -642,9 +592,6 @@ def trace_buckets(method, buckets, first, bk, grid, prim, opt, out):
         crossings per ray ((nb, B*B) int64) and their heights, ray after
         ray ((nb, xcap) float64, mm).
     """
-    # the method is a compile-time constant: each method gets a compiled copy of its own, in which the
-    # other methods' branches are pruned before typing (a job compiles only the walk it uses)
-    literally(method)
     nbx, B, bucket_off, ids, seg, boxes = bk
     # borrowed views (slicer._kernels.runtime.borrow): the arguments outlive the launch
     bk = (nbx, B, bucket_off, borrow(ids), borrow(seg), borrow(boxes))
@@ -701,9 +648,18 @@ def _trace_bucket(method, q, bidx, first, bk, grid, prim, opt, out):
             rk0 = rk0_all[used:]
             rk1 = rk1_all[used:]
             room = cap - used
-            nr, ne, nx = traced_ray(method, (seg, boxes, ids, i0, i1, px, py), (z0, h, K), prim, opt,
-                                    (bufs, (st_f, st_fh, st_fp), stack, (ct, cf, cfp), active),
-                                    (rk0, rk1, cz_all[xused:], room))
+            nx = 0
+            if method == 0:
+                nr, ne, nx = trace_ray_interval(seg, boxes, ids, i0, i1, (px, py), (z0, h, K), prim, opt, bufs,
+                                                (st_f, st_fh, st_fp), stack, (ct, cf, cfp),
+                                                (rk0, rk1, cz_all[xused:]))
+            elif method == 1:
+                nr, ne = trace_ray_sampling(seg, boxes, ids, i0, i1, px, py, (z0, h, K),
+                                            (n // 2, 1.0 / (sigma * sigma), norm), scratch, active, rk0, rk1,
+                                            room)
+            else:
+                nr, ne = trace_ray_segment(seg, boxes, ids, i0, i1, (px, py), (z0, h, K), prim, scratch, hprim, hrec,
+                                           order, rk0, rk1, room)
             if nr < 0:   # resumed at this ray, with more room
                 status = RUNS_FULL
                 stop = lr

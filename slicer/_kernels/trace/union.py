@@ -37,7 +37,7 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import literally, prange
+from numba import prange
 
 from slicer._jit import parallel_kernel, unrefcounted_kernel
 from slicer._kernels.runtime.borrow import borrow, keep_alive
@@ -523,7 +523,6 @@ def trace_union_buckets(method, buckets, first, bk, grid, prim, opt, out):
     (``method`` 0 interval, 1 sampling; ``cut_support`` and ``lazy`` have
     no effect: a strut's pieces always end at its support's ends).
     """
-    literally(method)       # one compiled copy per method, the other's branch pruned (as trace_buckets)
     nbx, B, bucket_off, ids, seg, boxes = bk
     W, H, x0, y0, pxs, pys, z0, h, K = grid
     n, sigma, norm, kmax = prim
