@@ -247,11 +247,11 @@ def measure(trees: dict, jobs, repeat: int, threads: int, quick: bool, log=print
             if job == "png":
                 continue                       # measured by the octet runs
             size = SIZES[job][1 if quick else 0]
-            for label, tree in trees.items():
-                runs = []
-                work = Path(tmp) / label
-                work.mkdir(exist_ok=True)
-                for _ in range(repeat):
+            runs = {label: [] for label in trees}
+            for _ in range(repeat):                    # the trees alternate: a load that comes and goes hits both
+                for label, tree in trees.items():
+                    work = Path(tmp) / label
+                    work.mkdir(exist_ok=True)
                     if job == "octet":
                         r = _octet(tree, size, threads, work)
                     elif job == "ctb":
@@ -259,11 +259,12 @@ def measure(trees: dict, jobs, repeat: int, threads: int, quick: bool, log=print
                     else:
                         _, text = _run(_worker_cmd(job, *size, threads), tree, threads, work)
                         r = json.loads(text.strip().splitlines()[-1])
-                    runs.append(r)
+                    runs[label].append(r)
                     log(f"{job} [{label}]: {r['seconds']:.2f} s")
-                rows.append(_row(job, label, size, runs, "seconds"))
+            for label in trees:
+                rows.append(_row(job, label, size, runs[label], "seconds"))
                 if job == "octet" and "png" in jobs:
-                    rows.append(_row("png", label, (size[1], size[1], size[2]), runs, "write_seconds"))
+                    rows.append(_row("png", label, (size[1], size[1], size[2]), runs[label], "write_seconds"))
     return rows
 
 
