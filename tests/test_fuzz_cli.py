@@ -413,3 +413,23 @@ def test_printer_jobs_streamed_in_slabs_are_placed_like_in_memory(printer, suffi
         assert r.exit_code == 0 and r.exception is None, (r.output, r.exception)
         outs.append(out.read_bytes())
     assert outs[0] == outs[1]
+
+
+@fuzz_settings(15)
+@given(kind=_run_kind(), st_data=st.data())
+def test_fuzz_supports(kind, st_data):
+    hostile, data = kind
+    draw = st_data.draw
+    length = text_number(0.0, 3.0)
+    table = {"--layer-height": LAYER, "--tip-radius": text_number(0.1, 0.3), "--elevation": length,
+             "--pad": st.sampled_from([True, False]), "--no-pad": st.booleans(), "--pad-thickness": length,
+             "--pad-margin": length, "--pillar-radius": text_number(0.2, 0.6), "--head-length": length,
+             "--penetration": length, "--bridge-length": length, "--critical-angle": text_number(0.0, 89.0),
+             "--tree-distance": length, "--blend": choice(["sum", "union"], ["max"]),
+             "--printer": choice(PRINTER_NAMES[:1], ["bogus"]), "--radius": text_number(0.1, 0.3),
+             "--force": st.booleans()}
+    with tempfile.TemporaryDirectory() as d:
+        folder = Path(d)
+        scene = _scene_in(folder, data)
+        args = ["supports", str(scene), "-o", "sup.json", "-q", "--pixel-size", draw(PIXEL.pick(hostile))]
+        _run(args + _options(draw, table, hostile), folder, allowed=(0, 2), name="supports")

@@ -34,6 +34,8 @@ from slicer.parts.slicing import part_grid, plan_part, slice_part, slice_part_pl
 from slicer.parts.part import Part
 from slicer.model.skeleton import Skeleton
 from slicer.tracer.slicing import SliceResult, slice_skeleton
+from slicer.supports.groups import refuse_pieces
+from slicer.supports.show import refuse_grouped
 from slicer.scale.tiles import plan_slice, slice_planned
 
 
@@ -120,6 +122,7 @@ def _run_resolved(skel, out, job: SliceJob, resolved: ResolvedJob, contours: boo
     """:func:`run_slice` once the job is resolved."""
     out_opts = job.output
     if contours:
+        refuse_grouped(skel, "the contours")                  # supports: docs/supports.md
         resolvable(out_opts.contour_tol, "--contour-tol", scene_reach(skel))
     if isinstance(skel, Part) and not skel.has_meshes:     # a lattice alone: the lattice's own path
         skel = skel.skeleton
@@ -217,6 +220,7 @@ def _trace(skel: Skeleton, job: SliceJob, resolved: ResolvedJob, *, progress=Non
             report(plan.describe())
         if dry_run:
             return plan
+        refuse_pieces(skel, plan.n_tiles, plan.n_slabs, executor)     # support groups: one piece
         res = slice_planned(*args, plan=plan, executor=executor, executor_info=executor_info,
                             workers=scale.workers, scheduler=scale.scheduler, progress=progress, blend=opts.blend)
     else:

@@ -21,6 +21,7 @@ from slicer.parts.part import Part
 from slicer.render.rendering import RenderResult, render
 from slicer.render.parts import render_part
 from slicer.model.skeleton import Skeleton
+from slicer.supports.show import render_scene
 
 
 def save_png(image: np.ndarray, path, force: bool = False) -> None:
@@ -67,7 +68,9 @@ def run_render(skel: Skeleton | Part, out, *, roots_out=None, force: bool = Fals
         if roots_out.resolve() == out.resolve():
             raise OutputError(f"{roots_out}: the roots file cannot be the image file")
         check_destination(roots_out, force)
-    draw = render_part if isinstance(skel, Part) else render      # a part: lattice and meshes
+    if isinstance(skel, Part) and not skel.has_meshes:
+        skel = skel.skeleton                                       # a lattice alone (perhaps with supports)
+    draw = render_part if isinstance(skel, Part) else render_scene   # a part: lattice and meshes
     res = draw(skel, keep_roots=roots_out is not None, **options)
     save_png(res.image(transparent), out, force)
     if roots_out is not None:

@@ -66,6 +66,10 @@ lattice fills or is trimmed by (see :mod:`slicer.parts.part`)::
   together: a mesh-only part. Clipping meshes need a lattice.
 * :func:`load_scene` returns the skeleton only and refuses a scene with
   meshes; :func:`slicer.parts.part.load_part` reads both.
+* ``"groups"`` (version 2): contiguous segment ranges with a role (``model``,
+  ``support``, ``pad``) that blend within and unite between, as supported
+  scenes hold them (:mod:`slicer.supports.groups`); the skeleton is then a
+  :class:`slicer.supports.groups.GroupedSkeleton`.
 
 OBJ polylines
 -------------
@@ -115,6 +119,7 @@ from slicer.errors import SceneError
 from slicer.scene.threemf import load_3mf
 from slicer.scene.write import FORMAT_VERSION, SUFFIXES, write_scene
 from slicer.model.skeleton import DEFAULT_DEGREE, DEFAULT_SIGMA, Skeleton
+from slicer.supports.groups import with_groups
 
 #: accepted "units": (multiplier, divisor) converting to mm
 UNITS: dict[str, tuple[float, float]] = {
@@ -436,11 +441,14 @@ def _scene_from_json(data, src: str, radius: float | None) -> tuple[Skeleton | N
         raise SceneError(f'"skelslice" = {version}: scene format version {version} is not supported '
                          f'(skelslice {__version__} reads versions {", ".join(map(str, READ_VERSIONS))}); '
                          f'upgrade skelslice', src)
-    keys = _KEYS + (("meshes",) if version >= 2 else ())
+    keys = _KEYS + (("meshes", "groups") if version >= 2 else ())
     unknown = [k for k in data if k not in keys and k != "metadata" and not k.startswith("x-")]
     if "meshes" in unknown:
         raise SceneError('"meshes" needs scene format version 2: write "skelslice": 2 '
                          '(version 1 files have no meshes)', src)
+    if "groups" in unknown:
+        raise SceneError('"groups" needs scene format version 2: write "skelslice": 2 '
+                         '(version 1 files have no groups)', src)
     if unknown:
         raise SceneError(f"unknown key{'s' if len(unknown) > 1 else ''} "
                          f"{_unknown_keys_message(unknown, keys + ('metadata',))}; "
@@ -464,6 +472,8 @@ def _scene_from_json(data, src: str, radius: float | None) -> tuple[Skeleton | N
                                  f'are {"empty" if lattice_keys else "absent"})', src)
         if not meshes:
             raise SceneError('the scene has neither a lattice nor a mesh ("meshes" is empty)', src)
+        if "groups" in data:
+            raise SceneError('"groups" is given but the scene has no lattice', src)
         return None, meshes
 
     nodes = _rows(data["nodes"], "nodes", 3, "node", "[x, y, z]", src)
@@ -531,7 +541,10 @@ def _scene_from_json(data, src: str, radius: float | None) -> tuple[Skeleton | N
         radii_arr = np.full((m, 2), float(radius))
     scene_numbers(nodes_arr, radii_arr, src, node_entry=lambda i, k: f"nodes[{i}][{k}]",
                   radius_entry=_json_radius_entry(seg_arr, seg_radii is not None, node_radii is not None))
-    return Skeleton(nodes_arr, seg_arr, radii_arr, degree, sigma, source=src), meshes
+    skel = Skeleton(nodes_arr, seg_arr, radii_arr, degree, sigma, source=src)
+    if "groups" in data:                    # struts that unite by groups (docs/supports.md)
+        skel = with_groups(skel, data["groups"], src)
+    return skel, meshes
 
 
 def _json_radius_entry(seg_arr: np.ndarray, by_segment: bool, by_node: bool):

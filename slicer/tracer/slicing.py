@@ -24,6 +24,7 @@ from slicer.errors import GridError
 from slicer.tracer.grid import SliceGrid, make_grid
 from slicer.raster.ordering import layer_events, rect_parts, stable_argsort
 from slicer.model.skeleton import Skeleton
+from slicer.supports.groups import is_grouped, trace_groups
 
 #: tracing methods and their kernel codes
 METHODS = {"interval": 0, "sampling": 1, "segment": 2}
@@ -223,6 +224,10 @@ def trace(skel: Skeleton, grid: SliceGrid, method: str = "interval", bucket: int
     """
     if method not in METHODS:
         raise GridError(f"unknown method {method!r}; choose one of {sorted(METHODS)}")
+    if is_grouped(skel):            # support groups: each traced alone, united (docs/supports.md)
+        return trace_groups(trace, skel, grid, method=method, bucket=bucket, threads=threads, strict=strict,
+                            cut_support=cut_support, batch=batch, spans=spans, span_tol=span_tol, blend=blend,
+                            lazy=lazy)
     union = require_traceable(blend, method=method) == "union"
     span_tol = _check_spans(method, spans, span_tol, grid.layer_height)
     bk = build_buckets(skel, grid, bucket)

@@ -3,8 +3,10 @@ from __future__ import annotations
 
 from slicer.cli.commands import bench, check, info, lattice, preview, printers, render, validate, warmup
 from slicer.cli.commands import slice as slice_
+from slicer.cli.commands import supports as supports_
+
 #: the commands, in the order ``skelslice --help`` lists them
 COMMANDS = [lattice.command, info.command, slice_.command, check.command, preview.command, printers.command,
-            render.command, validate.command, bench.command, warmup.command]
+            render.command, validate.command, bench.command, supports_.command, warmup.command]
 
 __all__ = ["COMMANDS"]

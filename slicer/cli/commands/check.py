@@ -18,6 +18,7 @@ from slicer.job.run import check_not_input, slice_job
 from slicer.printability import DEFAULT_FAIL_ON, KINDS, CheckOptions, check_stack, model_layers, read_layers
 from slicer.scene.read import load_scene
 from slicer.scale.tileplan import auto_budget, parse_size
+from slicer.cli.commands.supports import add_supports, pop_support_options, support_report, supports_options
 from slicer.cli.commands.options import grid_options, job_from, print_options, radius_option, scale_options, trace_options
 
 #: slice options that make no sense for an output that is already sliced
@@ -53,7 +54,7 @@ def is_output(path) -> bool:
     return kind_of(path) is not None
 
 
-def checked_stack(scene, radius, options: dict, progress=None):
+def checked_stack(scene, radius, options: dict, progress=None, supports: dict | None = None):
     """The layer stack (and skeleton, or None) of a scene sliced in memory or of an output read back.
 
     Returns
@@ -67,6 +68,8 @@ def checked_stack(scene, radius, options: dict, progress=None):
         open_stack(scene)                               # refused by name: contours, not layer images
     if is_output(scene):
         given = [n for n in _SLICE_ONLY if options.get(n) not in (None, ())] + (["radius"] if radius else [])
+        if supports and supports.get("supports") == "auto":
+            given.append("supports")
         if given:
             raise OptionError(f"{scene} is already sliced: --{given[0].replace('_', '-')} applies to scenes only")
         return read_layers(scene), None, None, None
@@ -75,6 +78,7 @@ def checked_stack(scene, radius, options: dict, progress=None):
         options["max_memory"] = auto_budget() if mm == "auto" else parse_size(mm)
     job = job_from(options, scene_name=str(scene))
     skel = load_scene(scene, radius=radius)
+    skel = add_supports(skel, supports or {}, job, options.get("blend") or "sum")     # --supports auto
     res, resolved = slice_job(skel, job, progress=progress)
     return model_layers(res, resolved.settings, source=str(scene)), skel, res, resolved
 
@@ -86,6 +90,7 @@ def checked_stack(scene, radius, options: dict, progress=None):
 @print_options
 @radius_option
 @check_options
+@supports_options
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Write the whole report as JSON (islands, thin_segments, traps, areas, estimate).")
 @click.option("--force", is_flag=True, help="Replace an existing --json file.")
@@ -104,12 +109,16 @@ def command(scene, radius, json_out, force, quiet, verbose, **options):
     in --fail-on was found; 2: bad input.
     """
     opts = options_of(options)
+    supports = pop_support_options(options)
     if json_out is not None:
         check_not_input(json_out, scene)
         check_destination(Path(json_out), force)
     blend = options.get("blend") or "sum"
-    stack, skel, _res, _resolved = checked_stack(scene, radius, options)
+    stack, skel, res, _resolved = checked_stack(scene, radius, options, supports=supports)
     report = check_stack(stack, skel, opts, blend=blend)
+    sup = support_report(skel, res)                          # a supported scene: counts and resin
+    if sup is not None:
+        report.info["supports"] = {k: v for k, v in sup.items() if k != "line"}
     if json_out is not None:
         report.write_json(json_out, force)
     if not quiet:
@@ -118,5 +127,7 @@ def command(scene, radius, json_out, force, quiet, verbose, **options):
             click.echo(text)
         elif verbose:
             click.echo(f"{scene}: nothing found\n{report.summary_line()}")
+        if sup is not None and (text or verbose):
+            click.echo(sup["line"])
     if not report.ok:
         raise SystemExit(1)

@@ -9,6 +9,7 @@ import numpy as np
 from slicer.arguments import fmt_num
 from slicer.errors import GridError
 from slicer.tracer.grid import MAX_VOXELS, make_grid
+from slicer.supports.show import support_line, support_stats
 from slicer.cli.commands.options import blend_option, load_part_from, part_options, positive
 
 #: an isolated segment shorter than this times its mean radius has no surface (docs/math.md §1.5)
@@ -231,7 +232,10 @@ def command(scene: str, radius: float | None, pixel_size: float | None, as_json:
     """
     part = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet=True)
     stats = part_stats(part, pixel_size, blend)
+    sup = support_stats(part.skeleton)                     # a supported scene's groups
+    if sup is not None:
+        stats["supports"] = sup
     if as_json:
         click.echo(json.dumps({"scene": scene, **stats}, indent=2))
     else:
-        click.echo(format_stats(scene, stats))
+        click.echo(format_stats(scene, stats) + (f"\n{support_line(sup)}" if sup is not None else ""))

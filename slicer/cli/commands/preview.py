@@ -13,7 +13,9 @@ from slicer.contours import iter_contours
 from slicer.job.run import check_not_input, plate_placement
 from slicer.viewer.page import PreviewBuilder, contours_of_polygons, png_data_uri, read_contours
 from slicer.printability import check_stack
-from slicer.render.rendering import render
+from slicer.cli.commands.supports import pop_support_options, supports_options
+from slicer.supports.groups import is_grouped
+from slicer.supports.show import render_scene
 from slicer.scene.read import load_scene
 from slicer.tracer.slicing import SliceResult
 from slicer.cli.commands.check import check_options, checked_stack, is_output, options_of
@@ -31,6 +33,7 @@ CONTOUR_TOL_PIXELS = 8
 @print_options
 @radius_option
 @check_options
+@supports_options
 @click.option("--no-check", is_flag=True, help="Do not run the printability check (no findings marked).")
 @click.option("--contours", "contours_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Overlay the contours of this file (written by `slice --contours`, .geojson or .json).")
@@ -56,6 +59,7 @@ def command(source, out, radius, no_check, contours_file, no_contours, contour_t
     plot and a transparent render of the part. Opens from disk, no network.
     """
     opts = options_of(options)
+    supports = pop_support_options(options)
     blend = options.get("blend") or "sum"
     if blend != "sum" and not is_output(source):
         if not no_contours and contours_file is None:
@@ -64,7 +68,7 @@ def command(source, out, radius, no_check, contours_file, no_contours, contour_t
             require_sum(blend, "preview's scene render", "pass --no-render")
     check_not_input(out, source, scene_file, contours_file)
     check_destination(Path(out), force)
-    stack, skel, res, resolved = checked_stack(source, radius, options)
+    stack, skel, res, resolved = checked_stack(source, radius, options, supports=supports)
     scene = skel if skel is not None else (load_scene(scene_file, radius=radius) if scene_file else None)
     builder = PreviewBuilder(stack)
     report = None
@@ -77,7 +81,7 @@ def command(source, out, radius, no_check, contours_file, no_contours, contour_t
     contours = None
     if contours_file is not None:
         contours = read_contours(contours_file)
-    elif skel is not None and not no_contours and isinstance(res, SliceResult):
+    elif skel is not None and not no_contours and not is_grouped(skel) and isinstance(res, SliceResult):
         placement = plate_placement(res, resolved.settings)
         tol = contour_tol if contour_tol is not None else min(res.grid.pixel_size) / CONTOUR_TOL_PIXELS
         items = iter_contours(skel, res, tol, placement=placement)
@@ -85,8 +89,9 @@ def command(source, out, radius, no_check, contours_file, no_contours, contour_t
                                              disable=None, leave=False))
     renders = []
     if scene is not None and not no_render:
-        img = render(scene, size=(render_size, render_size), view="iso").image(transparent=True)
-        renders.append({"caption": "transparent render of the scene (iso view)", "src": png_data_uri(img)})
+        img = render_scene(scene, size=(render_size, render_size), view="iso").image(transparent=True)
+        caption = "transparent render of the scene (iso view" + ("; supports in orange)" if is_grouped(scene) else ")")
+        renders.append({"caption": caption, "src": png_data_uri(img)})
     size = builder.write(out, force, title=Path(source).name, report=report, contours=contours, renders=renders,
                          job=_job_text(source, stack))
     if not quiet:

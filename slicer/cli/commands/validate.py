@@ -12,6 +12,7 @@ from validation.validate import format_table, validate, write_report
 
 from slicer.atomic import check_destination
 from slicer.model.blend import require_sum, require_traceable
+from slicer.supports.show import refuse_grouped
 from slicer.cli.commands.options import grid_options, load_part_from, part_options, radius_option, trace_options
 
 
@@ -55,6 +56,7 @@ def command(scene, pixel_size, pixels, pixel_size_y, layer_height, bounds, metho
         check_destination(report_dir, force)   # before any work
     union = require_traceable(blend, "validate", method) == "union"
     part = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet=as_json)
+    refuse_grouped(part, "validate")                       # supports: docs/supports.md
     if union and part.has_meshes:
         require_sum(blend, "validate of a part with meshes")
     run = validate_part if part.has_meshes else (validate_union if union else validate)
