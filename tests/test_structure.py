@@ -36,6 +36,7 @@ LAYERS = {
     "slicer.raster.placed_layers": 1, "slicer.viewer": 1,
     "slicer.printability": 1,         # reads back written layers (formats.readback)
     "slicer.supports.build": 1, "slicer.supports.points": 1, "slicer.supports.trees": 1,   # the check's island finder
+    "slicer.meshing": 1,              # mesh and 3MF outputs (formats.threemf_slices' package parts)
 }
 #: every other slicer.* module is core (layer 0)
 NAMES = {0: "core", 1: "outputs", 2: "validation", 3: "job/CLI"}

@@ -1,0 +1,123 @@
+"""The certified surface mesh against a uniform level set, at equal measured error.
+
+Usage::
+
+    python benchmarks/mesh_bench.py [--quick] [--json out.json]
+
+For each scene, ``slicer.meshing.mesh_scene`` at ``--tol`` (triangles, seconds, the
+certified bound), then the validation mesher ``validation.reference_mesh`` (uniform marching
+tetrahedra, vertices bisected onto the surface: the uniform level set the issue names) at
+grid edges of 1.5, 2.5 and 4 times the certified mesh's cube side (the uniform mesher
+samples its whole box, so finer grids cost minutes). Every mesh's error is
+measured the same way, independently of how it was made: at two random points of every
+triangle and its centroid, the first-order distance ``|F − 1| / ‖∇F‖`` to the surface
+(mesh to surface; the largest over the points). The second table gives, per scene, the
+triangles of a uniform mesh at the certified mesh's measured error (log-log fit of the
+uniform runs) and of the coarsest uniform mesh whose measured error is within the certified
+bound, each as a ratio.
+
+Scenes: three tapered struts and a needle (0.6 -> 0.08 mm) at tol 0.02 mm, the sample
+cubic_2x2x2 at 0.05 mm and octet_2x2x2 (240 struts: the dense lattice) at 0.1 mm.
+``--quick``: the first two only.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from sample_lattices import load_sample
+from slicer import Skeleton
+from slicer.model.field import evaluate
+from slicer.meshing import mesh_scene
+from validation import machine
+from validation.reference_mesh import reference_mesh
+
+
+def measured_error(skel, vertices, faces, seed=0):
+    """Largest ``|F − 1| / ‖∇F‖`` at two random points of each triangle and at its centroid, mm."""
+    rng = np.random.default_rng(seed)
+    tri = vertices[faces]
+    w = rng.dirichlet([1.0, 1.0, 1.0], size=(len(faces), 2))
+    p = np.vstack([np.einsum("tkj,tjd->tkd", w, tri).reshape(-1, 3), tri.mean(axis=1)])
+    f, g = evaluate(skel, p, gradient=True)
+    return float((np.abs(f - 1.0) / np.linalg.norm(g, axis=1)).max())
+
+
+def scenes(quick):
+    out = [("3 struts", Skeleton([[0, 0, 0], [3, 0, 0], [3, 3, 1], [0, 3, 2]], [[0, 1], [1, 2], [2, 3]],
+                                 [[0.5, 0.3], [0.3, 0.45], [0.45, 0.6]]), 0.02),
+           ("needle", Skeleton([[0, 0, 0], [0, 0, 3]], [[0, 1]], [[0.6, 0.08]]), 0.02)]
+    if not quick:
+        out += [("cubic_2x2x2", load_sample("cubic_2x2x2"), 0.05), ("octet_2x2x2", load_sample("octet_2x2x2"), 0.1)]
+    return out
+
+
+def run(quick):
+    rows = []
+    for name, skel, tol in scenes(quick):
+        t0 = time.perf_counter()
+        m = mesh_scene(skel, tol=tol)
+        secs = time.perf_counter() - t0
+        ours = {"scene": name, "method": "certified", "tol": tol, "cell": m.cell, "triangles": int(len(m.faces)),
+                "seconds": round(secs, 2), "bound": m.bound, "measured": measured_error(skel, m.vertices, m.faces)}
+        rows.append(ours)
+        print(ours, file=sys.stderr, flush=True)
+        for k in (1.5, 2.5, 4.0):
+            t0 = time.perf_counter()
+            man, info = reference_mesh(skel, m.cell * k, with_error=False)
+            secs = time.perf_counter() - t0
+            mesh = man.to_mesh64()
+            v, f = np.asarray(mesh.vert_properties)[:, :3].astype(np.float64), np.asarray(mesh.tri_verts)
+            rows.append({"scene": name, "method": "uniform", "tol": None, "cell": m.cell * k,
+                         "triangles": int(len(f)), "seconds": round(secs, 2), "bound": None,
+                         "measured": measured_error(skel, v, f)})
+            print(rows[-1], file=sys.stderr, flush=True)
+    return rows
+
+
+def table(rows):
+    lines = ["| scene | method | cube / edge (mm) | triangles | seconds | certified bound (mm) | measured error (mm) |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        bound = f"{r['bound']:.4g}" if r["bound"] is not None else "-"
+        lines.append(f"| {r['scene']} | {r['method']} | {r['cell']:.4g} | {r['triangles']:,} | {r['seconds']:.1f} | "
+                     f"{bound} | {r['measured']:.3g} |")
+    lines += ["", "| scene | certified: triangles | uniform at its measured error | ratio | uniform measuring at most "
+              "its certified bound | ratio |", "|---|---|---|---|---|---|"]
+    for name in dict.fromkeys(r["scene"] for r in rows):
+        ours = next(r for r in rows if r["scene"] == name and r["method"] == "certified")
+        uni = sorted((r for r in rows if r["scene"] == name and r["method"] == "uniform"), key=lambda r: r["measured"])
+        equal = _interpolated(uni, ours["measured"])
+        within = [r for r in uni if r["measured"] <= ours["bound"]]
+        coarse = min(within, key=lambda r: r["triangles"]) if within else None
+        lines.append(f"| {name} | {ours['triangles']:,} | {equal:,.0f} | {ours['triangles'] / equal:.2f} | "
+                     + (f"{coarse['triangles']:,} (measured {coarse['measured']:.3g} mm) | "
+                        f"{ours['triangles'] / coarse['triangles']:.1f} |" if coarse else "- | - |"))
+    return "\n".join(lines)
+
+
+def _interpolated(uni, error):
+    """Triangles of a uniform mesh measuring ``error``: log-log interpolation (or
+    extrapolation) of triangles against measured error over the uniform runs."""
+    x = np.log([r["measured"] for r in uni])
+    y = np.log([r["triangles"] for r in uni])
+    slope, icpt = np.polyfit(x, y, 1)
+    return float(np.exp(icpt + slope * np.log(error)))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="The two small scenes only.")
+    ap.add_argument("--json", default=None, help="Also write the rows, command and machine here.")
+    a = ap.parse_args(argv)
+    rows = run(a.quick)
+    res = {"benchmark": "mesh_bench", "command": machine.command_line("python benchmarks/mesh_bench.py", argv),
+           "machine": machine.describe(), "rows": rows}
+    machine.publish(res, table(rows), a.json)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

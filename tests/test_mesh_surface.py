@@ -1,0 +1,250 @@
+"""The surface as a certified mesh (slicer.meshing.surface, docs/mesh.md).
+
+* The ball bounds (slicer._kernels.meshing.ballbounds) hold at sampled points of random
+  balls near random segments: L <= F <= U, the Hessian's norm (central differences of the
+  closed-form gradient) <= H, and its restriction to the ball's plane <= H_P.
+* The acceptance check, independent of the mesher (tests/mesh_checks.py), on a few tapered
+  struts, a needle and a small lattice: the mesh is watertight and consistently wound with
+  outward normals; points sampled on it have the surface within the tolerance along the
+  gradient; surface points found by bisection on random lines are within the tolerance of it.
+* The bound printed is the bound certified, the output files read back (trimesh, lib3mf),
+  the thread count changes nothing, and bad input is refused by the command line with
+  exit status 2 and nothing written.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mesh_checks import mesh_points_near_surface, point_triangle_distance, surface_points_on_lines
+from parts_helpers import winding_number
+from slicer import Skeleton, generate_lattice
+from slicer._kernels.runtime.launch import numba_threads
+from slicer._kernels.meshing.ballbounds import ball_bounds
+from slicer.cli.app import main
+from slicer.errors import SceneError
+from slicer.model.field import evaluate, point_grid
+from slicer.meshing import mesh_scene, write_mesh
+from slicer.meshing.surface import enclosing_balls
+from slicer.scene.threemf import load_3mf, read_3mf
+
+FD_STEP = 1e-6
+FD_MARGIN = 1e-5
+
+
+def hessians(skel, pts):
+    """Symmetrised Hessians (k, 3, 3) by central differences of the closed-form gradient."""
+    hess = np.zeros((len(pts), 3, 3))
+    for j in range(3):
+        step = np.zeros(3)
+        step[j] = FD_STEP
+        hess[:, :, j] = (evaluate(skel, pts + step, gradient=True)[1]
+                         - evaluate(skel, pts - step, gradient=True)[1]) / (2 * FD_STEP)
+    return 0.5 * (hess + hess.transpose(0, 2, 1))
+
+
+unit = st.floats(-1.0, 1.0)
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(st.tuples(unit, unit, unit).filter(lambda v: sum(x * x for x in v) > 0.01),
+       st.sampled_from([0.05, 1.0, 4.0]), st.floats(0.1, 1.0), st.floats(0.1, 1.0),
+       st.integers(1, 3),                                    # struts meeting at the node
+       st.floats(0.0, 1.0), st.floats(0.0, 2.2), st.sampled_from([0.001, 0.05, 0.4]),
+       st.tuples(unit, unit, unit), st.sampled_from([4, 6, 8]), st.integers(0, 2**31))
+def test_ball_bounds_hold(direction, length, r0, r1, k, t, off, r, normal, degree, seed):
+    rng = np.random.default_rng(seed)
+    u = np.array(direction) / np.linalg.norm(direction)
+    ends = [u * length] + [rng.normal(size=3) for _ in range(k - 1)]
+    nodes = np.array([np.zeros(3)] + ends)
+    segs = [[0, i + 1] for i in range(k)]
+    radii = [[r0, r1]] + [list(rng.uniform(0.1, 1.0, 2)) for _ in range(k - 1)]
+    skel = Skeleton(nodes, segs, radii, degree=degree)
+    side = np.cross(u, rng.normal(size=3))
+    side /= np.linalg.norm(side)
+    c = t * length * u + off * max(r0, r1) * side
+    nu = np.array(normal)
+    nu = nu / np.linalg.norm(nu) if np.linalg.norm(nu) > 0.1 else np.zeros(3)
+    table, grid = point_grid(skel)
+    U, L, H, HP = (a[0] for a in ball_bounds(table, grid.offsets, grid.ids, grid.origin, grid.cell, grid.dims,
+                                             c[None], np.array([r]), nu[None], degree, skel.sigma,
+                                             skel.normalisation))
+    d = rng.normal(size=(40, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    pts = np.vstack([c, c + d * r * np.cbrt(rng.uniform(0, 1, 40))[:, None], c + d[:10] * r * (1 - 1e-9)])
+    f = evaluate(skel, pts)[0]
+    assert f.max() <= U * (1 + 1e-9) and f.min() >= L * (1 - 1e-9) - 1e-12, (f.min(), f.max(), L, U)
+    hess = hessians(skel, pts)
+    norm = np.abs(np.linalg.eigvalsh(hess)).max(axis=1)
+    assert norm.max() <= H + FD_MARGIN * (1 + H), (norm.max(), H)
+    if nu.any():
+        v = np.cross(nu, rng.normal(size=(20, 3)))
+        v /= np.linalg.norm(v, axis=1)[:, None]
+        second = np.abs(np.einsum("vi,kij,vj->kv", v, hess, v)).max()
+        assert second <= HP + FD_MARGIN * (1 + HP), (second, HP)
+    assert HP <= H
+
+
+def test_enclosing_balls_are_the_smallest():
+    rng = np.random.default_rng(3)
+    tri = rng.normal(size=(500, 3, 3))
+    c, r = enclosing_balls(tri)
+    assert (np.linalg.norm(tri - c[:, None], axis=2).max(axis=1) <= r).all()
+    # no smaller ball: each is the circumscribed ball of its triangle's acute part or half its longest edge
+    longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
+    assert (r >= 0.5 * longest * (1 - 1e-12)).all()
+    for t, cc, rr in zip(tri[:50], c[:50], r[:50]):
+        far = [np.linalg.norm(t - (cc + 1e-3 * rr * s), axis=1).max() for s in rng.normal(size=(30, 3))]
+        assert min(far) >= rr * (1 - 1e-9)
+
+
+def needle():
+    return Skeleton([[0, 0, 0], [0, 0, 2]], [[0, 1]], [[0.4, 0.08]])
+
+
+def struts():
+    rng = np.random.default_rng(11)
+    nodes = rng.uniform(0, 3, (5, 3))
+    return Skeleton(nodes, [[0, 1], [1, 2], [2, 3], [1, 4]], rng.uniform(0.25, 0.6, (4, 2)))
+
+
+def small_lattice():
+    return generate_lattice("cubic", (1, 1, 1), 2.0, 0.3)
+
+
+SCENES = {"struts": (struts, 0.06), "needle": (needle, 0.05), "lattice": (small_lattice, 0.06)}
+
+
+@pytest.fixture(scope="module")
+def meshed():
+    """Each scene of SCENES meshed once: name -> (skeleton, tol, SurfaceMesh)."""
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            make, tol = SCENES[name]
+            skel = make()
+            cache[name] = (skel, tol, mesh_scene(skel, tol=tol))
+        return cache[name]
+    return get
+
+
+# the lattice case ("lattice", a cubic cell at 0.06 mm) takes minutes: benchmarks/mesh_bench.py runs it
+@pytest.mark.parametrize("name", ["needle", "struts"])
+def test_the_mesh_is_watertight_and_within_tol_both_ways(meshed, name):
+    skel, tol, m = meshed(name)
+    assert m.certified and m.bound <= tol and max(m.mesh_to_surface, m.surface_to_mesh) == m.bound
+    t = trimesh.Trimesh(m.vertices, m.faces, process=False)
+    assert t.is_watertight and t.is_winding_consistent and t.volume > 0
+    # every edge in exactly two faces, once each way (oriented 2-manifold)
+    e = np.concatenate([m.faces[:, [0, 1]], m.faces[:, [1, 2]], m.faces[:, [2, 0]]])
+    assert len(np.unique(e, axis=0)) == len(e)
+    assert len(mesh_points_near_surface(skel, m.vertices, m.faces, tol)) == 0
+    surf = surface_points_on_lines(skel, n_lines=40)
+    assert len(surf) >= 20
+    d = point_triangle_distance(surf, m.vertices[m.faces])
+    assert d.max() <= tol, d.max()
+    # the solid: points well inside (F >= 1.2) are inside the mesh, points with F <= 0.8 outside
+    lo, hi = skel.support_bounds()
+    p = np.random.default_rng(5).uniform(lo, hi, (400, 3))
+    f = evaluate(skel, p)[0]
+    p = p[np.abs(f - 1) > 0.2]
+    w = winding_number(m.vertices[m.faces], p, chunk=4)
+    assert np.allclose(w, np.rint(w), atol=1e-6) and np.array_equal(np.rint(w) == 1, evaluate(skel, p)[0] > 1)
+
+
+def test_tip_of_a_needle_is_kept(meshed):
+    """The thin end (radius 0.08 mm) of a needle, wider than the tolerance, is in the mesh:
+    its highest vertex is within the tolerance of the surface's top on the axis."""
+    skel, tol, m = meshed("needle")
+    top = skel.nodes[1][2]
+    ztop = m.vertices[:, 2].max()
+    # the surface's highest point on the axis, by bisection
+    lo, hi = top, top + 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if skel.field([[0, 0, mid]])[0] >= 1 else (lo, mid)
+    assert abs(ztop - lo) <= tol
+
+
+def test_threads_change_nothing():
+    skel = struts()
+    with numba_threads(1):
+        a = mesh_scene(skel, tol=0.1)
+    with numba_threads(2):
+        b = mesh_scene(skel, tol=0.1)
+    assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces) and a.bound == b.bound
+
+
+def test_refusals():
+    with pytest.raises(SceneError, match="degree 2"):
+        mesh_scene(Skeleton([[0, 0, 0], [0, 0, 1]], [[0, 1]], [[0.5, 0.5]], degree=2))
+
+
+def test_cli_writes_and_reports_the_bound(tmp_path):
+    scene = tmp_path / "s.json"
+    needle().save(scene)
+    out = tmp_path / "m.3mf"
+    res = CliRunner().invoke(main, ["mesh", str(scene), "-o", str(out), "--tol", "0.1"])
+    assert res.exit_code == 0, res.output
+    bound = float(res.output.split("certified Hausdorff bound ")[1].split()[0])
+    assert 0 < bound <= 0.1
+    lib3mf = pytest.importorskip("lib3mf")
+    model = lib3mf.get_wrapper().CreateModel()
+    model.QueryReader("3mf").ReadFromFile(str(out))
+    objs = model.GetMeshObjects()
+    assert objs.MoveNext()
+    mesh = objs.GetCurrentMeshObject()
+    assert mesh.GetTriangleCount() > 100 and mesh.IsManifoldAndOriented()
+
+
+@pytest.mark.parametrize("suffix", [".stl", ".ply", ".obj", ".3mf"])
+def test_every_format_reads_back(meshed, tmp_path, suffix):
+    _, _, m = meshed("struts")
+    out = tmp_path / f"m{suffix}"
+    write_mesh(m.vertices, m.faces, out)
+    if suffix == ".3mf":
+        (back,) = read_3mf(out).solids                # our reader: closed, outward, manifold
+        assert np.allclose(back.vertices, m.vertices, atol=1e-5) and np.array_equal(back.faces, m.faces)
+    else:
+        t = trimesh.load(out, force="mesh", process=suffix == ".stl")     # STL: merge the corners
+        assert t.is_watertight and t.is_winding_consistent and len(t.faces) == len(m.faces)
+        assert abs(t.volume - m.trimesh().volume) < 1e-5 * t.volume
+        if suffix != ".stl":
+            assert np.allclose(t.vertices, m.vertices, atol=1e-6)
+
+
+@pytest.mark.parametrize("args, needle_text", [
+    (["-o", "{d}/m.xyz"], "unknown mesh file type"),
+    (["-o", "{d}/m.stl", "--tol", "0"], "--tol"),
+    (["-o", "{d}/m.stl", "--blend", "union"], "union"),
+    (["-o", "{d}/m.stl", "--beams"], "name the output .3mf"),
+    (["-o", "{d}/m.stl", "--solid", "{d}/box.stl"], "lattices only"),
+])
+def test_cli_refusals_write_nothing(tmp_path, args, needle_text):
+    scene = tmp_path / "s.json"
+    needle().save(scene)
+    trimesh.creation.box((1, 1, 1)).export(tmp_path / "box.stl")
+    before = set(tmp_path.iterdir())
+    res = CliRunner().invoke(main, ["mesh", str(scene)] + [a.format(d=tmp_path) for a in args])
+    assert res.exit_code == 2, res.output
+    assert needle_text in res.output
+    assert set(tmp_path.iterdir()) == before
+
+
+def test_cli_beams_read_back(tmp_path):
+    scene = tmp_path / "s.json"
+    skel = small_lattice()
+    skel.save(scene)
+    out = tmp_path / "l.3mf"
+    res = CliRunner().invoke(main, ["mesh", str(scene), "-o", str(out), "--beams"])
+    assert res.exit_code == 0, res.output
+    back = load_3mf(out)
+    assert back.n_segments == skel.n_segments
+    assert np.allclose(back.nodes, skel.nodes[np.unique(skel.segments)], atol=1e-5)
