@@ -24,9 +24,11 @@ from __future__ import annotations
 import configparser
 import io
 import json
+import mmap
 import re
 import struct
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
@@ -36,6 +38,7 @@ from PIL import Image
 
 from slicer._kernels.formats.goo_rle import OK, decode_goo
 from slicer.errors import ReadError
+from slicer.input_limits import check_allocation, check_file_size, check_members, read_member
 from slicer.tracer.grid import SliceGrid
 
 from formats.goo import HEADER_SIZE, MAGIC
@@ -83,7 +86,7 @@ class ReadStack:
         """Each layer, bottom first, as a (h, w) uint8 plate image, or its
         ``window`` = (r0, c0, r1, c1) cut."""
         src = self._iter() if self._iter is not None else (self._read(k) for k in range(self.grid.layers))
-        for k, img in enumerate(src):
+        for k, img in enumerate(_guarded(src, self.path, self.format)):
             img = np.asarray(img)
             if img.shape != (self.grid.height, self.grid.width):
                 raise ReadError(f"{self.path}: layer {k} is {img.shape[1]} x {img.shape[0]} px, expected "
@@ -152,6 +155,32 @@ def _pasted(kept: list, window: tuple[int, int, int, int]) -> Iterator[np.ndarra
         yield out
 
 
+#: what a malformed member, record or table raises while a stack is read
+_MALFORMED = (zipfile.BadZipFile, KeyError, ValueError, TypeError, AttributeError, struct.error, OSError, IndexError,
+              EOFError, zlib.error)
+#: smallest GOO layer record, bytes: 66-byte definition, 4-byte size, 0x55, checksum, delimiter
+GOO_MIN_RECORD = 66 + 4 + 2 + 2
+
+
+def _guarded(src: Iterator, path, kind: str) -> Iterator:
+    """``src``'s items; a malformed member or record met while reading becomes one :class:`ReadError`."""
+    try:
+        yield from src
+    except _MALFORMED as exc:
+        if isinstance(exc, ReadError):
+            raise
+        raise ReadError(f"{path}: cannot read the {kind} file ({type(exc).__name__}: {exc})") from None
+
+
+def _check_stack(rs: "ReadStack", p: Path) -> "ReadStack":
+    """Refuse a stack whose declared image size passes the input limit (before any layer is read)."""
+    g = rs.grid
+    if g.width < 1 or g.height < 1 or g.layers < 0:
+        raise ReadError(f"{p}: the file declares {g.width} x {g.height} px and {g.layers} layers")
+    check_allocation(g.width * g.height, 4, f"layer images of {g.width:,} x {g.height:,} px", p, ReadError)
+    return rs
+
+
 def kind_of(path) -> str | None:
     """The output format of ``path`` (``png`` for a folder with ``slices.json``), or None."""
     p = Path(path)
@@ -186,8 +215,8 @@ def open_stack(path) -> ReadStack:
         raise ReadError(f"{p}: not a layer stack skelslice reads (a png folder with slices.json, "
                         ".zip, .sl1, .sl1s, .goo or .nanodlp)")
     try:
-        return _OPENERS[kind](p)
-    except (zipfile.BadZipFile, KeyError, ValueError, struct.error, OSError) as exc:
+        return _check_stack(_OPENERS[kind](p), p)
+    except _MALFORMED as exc:
         if isinstance(exc, ReadError):
             raise
         raise ReadError(f"{p}: cannot read the {kind} file ({type(exc).__name__}: {exc})") from None
@@ -230,6 +259,8 @@ def _grey(data: bytes, name) -> np.ndarray:
 
 
 def _open_png(p: Path) -> ReadStack:
+    if (p / "slices.json").is_file():
+        check_file_size(p / "slices.json", ReadError)
     try:
         doc = json.loads((p / "slices.json").read_text())
     except (OSError, ValueError) as exc:
@@ -243,18 +274,23 @@ def _open_png(p: Path) -> ReadStack:
 
 def _open_zip(p: Path) -> ReadStack:
     with zipfile.ZipFile(p) as z:
+        check_members(z, p, ReadError)
         try:
-            doc = json.loads(z.read("slices.json"))
+            doc = json.loads(read_member(z, "slices.json", p, ReadError))
         except KeyError:
             raise ReadError(f"{p}: no slices.json: not a skelslice zip stack") from None
+        names = set(z.namelist())
     g = _grid_of(doc, f"{p}:slices.json")
     prn, s = _settings_of(doc, g.layer_height)
     files = doc["files"]
+    missing = next((f for f in files if not isinstance(f, str) or f not in names), None)
+    if missing is not None:
+        raise ReadError(f"{p}: slices.json lists {len(files):,} layer files, but the archive holds no {missing!r}")
 
     def layers():
         with zipfile.ZipFile(p) as z:
             for f in files:
-                yield _grey(z.read(f), f"{p}:{f}")
+                yield _grey(read_member(z, f, p, ReadError), f"{p}:{f}")
 
     return ReadStack(p, "zip", g, "plate" if prn else "scene", prn, s, doc, _iter=layers)
 
@@ -290,12 +326,13 @@ def _ini(text: str) -> dict:
 
 def _open_sl1(p: Path) -> ReadStack:
     with zipfile.ZipFile(p) as z:
+        check_members(z, p, ReadError)
         names = z.namelist()
         try:
-            cfg = _ini(z.read("config.ini").decode())
+            cfg = _ini(read_member(z, "config.ini", p, ReadError).decode())
         except KeyError:
             raise ReadError(f"{p}: no config.ini: not an SL1 archive") from None
-        ps = _ini(z.read("prusaslicer.ini").decode()) if "prusaslicer.ini" in names else {}
+        ps = _ini(read_member(z, "prusaslicer.ini", p, ReadError).decode()) if "prusaslicer.ini" in names else {}
     job = cfg.get("jobDir", "")
     pat = re.compile(re.escape(job) + r"(\d{5})\.png$")
     ks = sorted(int(m.group(1)) for m in map(pat.match, names) if m)
@@ -320,7 +357,7 @@ def _open_sl1(p: Path) -> ReadStack:
         with zipfile.ZipFile(p) as z:
             for k in ks:
                 name = f"{job}{k:05d}.png"
-                img = _grey(z.read(name), f"{p}:{name}")
+                img = _grey(read_member(z, name, p, ReadError), f"{p}:{name}")
                 if img.shape != prn.native_shape:
                     raise ReadError(f"{p}:{name}: {img.shape[1]} x {img.shape[0]} px, the display is "
                                     f"{prn.native_shape[1]} x {prn.native_shape[0]}")
@@ -344,48 +381,66 @@ def _open_goo(p: Path) -> ReadStack:
     bexp, blayers = struct.unpack_from(">fI", head, 195369)
     if struct.unpack_from(">I", head, 195470)[0] != HEADER_SIZE:
         raise ReadError(f"{p}: the layer content offset is not {HEADER_SIZE}")
+    size = p.stat().st_size
+    if HEADER_SIZE + n * GOO_MIN_RECORD > size:
+        raise ReadError(f"{p}: the header says {n:,} layers, which need at least "
+                        f"{HEADER_SIZE + n * GOO_MIN_RECORD:,} bytes; the file has {size:,}")
+    check_allocation(xres * yres, 1, f"layer images of {xres:,} x {yres:,} px", p, ReadError)
     prn = _printer_for(model, (xres, yres), (xs, ys), "landscape", mx, my, p)
     h = float(np.float32(h))
     h = round(h, 6)
     s = PrintSettings(prn, h, round(float(exp), 6), round(float(bexp), 6), int(blayers))
 
     def layers():
-        raw = p.read_bytes()
-        off = HEADER_SIZE
-        for k in range(n):
-            off += 66
-            if raw[off - 2:off] != b"\r\n":
-                raise ReadError(f"{p}: layer {k}: no record delimiter at byte {off - 2}")
-            (size,) = struct.unpack_from(">I", raw, off)
-            if raw[off + 4] != 0x55:
-                raise ReadError(f"{p}: layer {k}: no 0x55 magic at byte {off + 4}")
-            payload = np.frombuffer(raw, np.uint8, size - 2, off + 5)
-            if raw[off + 5 + size - 2] != (~int(payload.sum(dtype=np.uint64))) & 0xFF:
-                raise ReadError(f"{p}: layer {k}: bad checksum")
-            img = np.zeros(xres * yres, np.uint8)
-            status, where = decode_goo(payload, img)
-            if status != OK:
-                raise ReadError(f"{p}: layer {k}: bad run-length data (code {status} at {where})")
-            end = off + 5 + size - 1                        # after the checksum
-            if raw[end:end + 2] != b"\r\n":
-                raise ReadError(f"{p}: layer {k}: no delimiter after the layer data at byte {end}")
-            off = end + 2
-            yield prn.from_native(img.reshape(yres, xres))
+        with open(p, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as raw:
+            yield from _goo_layers(raw, p, n, xres, yres, prn)
 
     return ReadStack(p, "goo", _plate_grid(prn, h, n), "plate", prn, s, {"printer_name": model}, _iter=layers)
+
+
+def _goo_layers(raw, p: Path, n: int, xres: int, yres: int, prn: Printer) -> Iterator[np.ndarray]:
+    """The plate images of a GOO file's ``n`` layer records (``raw``: the whole file, bytes or mmap)."""
+    off = HEADER_SIZE
+    for k in range(n):
+        off += 66
+        if raw[off - 2:off] != b"\r\n":
+            raise ReadError(f"{p}: layer {k}: no record delimiter at byte {off - 2}")
+        (size,) = struct.unpack_from(">I", raw, off)
+        if size < 2 or off + 5 + size + 1 > len(raw):
+            raise ReadError(f"{p}: layer {k}: the record says {size:,} bytes of data at byte {off}; the file "
+                            f"has {len(raw):,}")
+        if raw[off + 4] != 0x55:
+            raise ReadError(f"{p}: layer {k}: no 0x55 magic at byte {off + 4}")
+        payload = np.frombuffer(bytes(raw[off + 5:off + 3 + size]), np.uint8)  # a copy: the mmap closes
+        if raw[off + 5 + size - 2] != (~int(payload.sum(dtype=np.uint64))) & 0xFF:
+            raise ReadError(f"{p}: layer {k}: bad checksum")
+        img = np.zeros(xres * yres, np.uint8)
+        status, where = decode_goo(payload, img)
+        if status != OK:
+            raise ReadError(f"{p}: layer {k}: bad run-length data (code {status} at {where})")
+        end = off + 5 + size - 1                        # after the checksum
+        if raw[end:end + 2] != b"\r\n":
+            raise ReadError(f"{p}: layer {k}: no delimiter after the layer data at byte {end}")
+        off = end + 2
+        yield prn.from_native(img.reshape(yres, xres))
 
 
 # ---------------------------------------------------------------- NanoDLP
 def _open_nanodlp(p: Path) -> ReadStack:
     with zipfile.ZipFile(p) as z:
+        check_members(z, p, ReadError)
         try:
-            plate = json.loads(z.read("plate.json"))
-            opts = json.loads(z.read("options.json"))
-            prof = json.loads(z.read("profile.json"))
+            plate = json.loads(read_member(z, "plate.json", p, ReadError))
+            opts = json.loads(read_member(z, "options.json", p, ReadError))
+            prof = json.loads(read_member(z, "profile.json", p, ReadError))
+            names = set(z.namelist())
         except KeyError as exc:
             raise ReadError(f"{p}: no {exc.args[0]}: not a NanoDLP archive") from None
     n = int(plate["LayersCount"])
     cols, rows = int(opts["PWidth"]), int(opts["PHeight"])
+    missing = [f"{k}.png" for k in (1, n) if f"{k}.png" not in names] if n > 0 else []
+    if missing:
+        raise ReadError(f"{p}: plate.json says {n:,} layers, but there is no {missing[0]}")
     cw, rh = float(opts["XPixelSize"]), float(opts["YPixelSize"])
     h = float(prof["Depth"]) / 1000.0
     prn = next((q for q in PRINTERS.values() if q.label == prof.get("Title") and q.native_shape == (rows, cols)), None)
@@ -401,7 +456,7 @@ def _open_nanodlp(p: Path) -> ReadStack:
     def layers():
         with zipfile.ZipFile(p) as z:
             for k in range(1, n + 1):
-                img = np.asarray(Image.open(io.BytesIO(z.read(f"{k}.png"))).convert("RGB"))
+                img = np.asarray(Image.open(io.BytesIO(read_member(z, f"{k}.png", p, ReadError))).convert("RGB"))
                 disp = unpack_rgb(img)
                 if disp.shape != (rows, cols):
                     raise ReadError(f"{p}:{k}.png: {disp.shape[1]} x {disp.shape[0]} display px, expected "

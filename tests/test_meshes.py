@@ -217,3 +217,50 @@ def test_transform_mirror_keeps_outward_faces():
     assert sheared.volume() == pytest.approx(8.0) and sheared.bounds()[0, 2] == pytest.approx(2.0)
     with pytest.raises(SceneError, match="singular"):
         m.transformed(np.diag([1.0, 0.0, 1.0, 1.0]))
+
+
+def _fans_reference(faces: np.ndarray) -> np.ndarray:
+    """Vertices whose faces form more than one fan, the slow obvious way: for each vertex, join
+    two of its faces when they share an edge at it, and count the groups (union-find)."""
+    out = []
+    for v in range(int(faces.max()) + 1):
+        around = [k for k in range(len(faces)) if v in faces[k]]
+        group = {k: k for k in around}
+
+        def root(k):
+            while group[k] != k:
+                k = group[k]
+            return k
+
+        for i in around:
+            for j in around:
+                if i < j and len((set(faces[i]) & set(faces[j])) - {v}) > 0:
+                    group[root(i)] = root(j)
+        if len({root(k) for k in around}) > 1:
+            out.append(v)
+    return np.array(out, dtype=np.int64)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(st.integers(1, 5), st.data())
+def test_pinched_vertices_match_the_slow_reference(k, data):
+    """Tetrahedra glued at single vertices (no edge shared): each glued vertex has one fan per
+    tetrahedron that meets it, as the union-find reference counts."""
+    from slicer.parts.meshes import _pinched
+
+    tet = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    faces = np.concatenate([tet + 4 * i for i in range(k)])
+    label = np.arange(4 * k)
+    for i in range(1, k):                                # glue one corner of tetrahedron i to an earlier one
+        corner = data.draw(st.integers(0, 3), label="corner")
+        onto = data.draw(st.integers(0, 4 * i - 1), label="onto")
+        label[4 * i + corner] = label[onto]
+    _, inv = np.unique(label, return_inverse=True)
+    faces = inv[faces]
+    want = _fans_reference(faces)
+    assert np.array_equal(_pinched(faces), want)
+    m = len(faces)                                       # directed edge c m + f: faces[f, c] -> next corner
+    start = {(int(faces[f, c]), int(faces[f, (c + 1) % 3])): c * m + f for f in range(m) for c in range(3)}
+    twin = np.array([start[(int(faces[k % m, (k // m + 1) % 3]), int(faces[k % m, k // m]))]
+                     for k in range(3 * m)])
+    assert np.array_equal(_pinched(faces, twin), want)

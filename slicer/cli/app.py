@@ -13,15 +13,18 @@ hidden temporary output, as it does for :class:`KeyboardInterrupt`.
 from __future__ import annotations
 
 import contextlib
+import math
 import signal
 import sys
 import threading
 
 import click
 
+from slicer import input_limits
 from slicer.cli.commands import COMMANDS
 from slicer.cli.compile_notice import compile_notices
-from slicer.errors import SkelsliceError
+from slicer.errors import OptionError, SkelsliceError
+from slicer.scale.tileplan import parse_size
 
 
 #: exit status after SIGTERM (the shell's 128 + signal number)
@@ -84,10 +87,40 @@ def _interruption(exc: BaseException) -> BaseException | None:
     return None
 
 
+def _input_size(ctx, param, value):
+    """``--max-input-bytes``: a size (``1GiB``, ``800MB``, ``none``) in bytes, or None."""
+    try:
+        return parse_size(value)
+    except OptionError as exc:
+        raise click.BadParameter(str(exc).replace("--max-memory", param.opts[0])) from None
+
+
+def _input_ratio(ctx, param, value):
+    """``--max-input-ratio``: a number >= 1, or None (``none``)."""
+    text = str(value).strip().lower()
+    if text in ("none", "unlimited", "0"):
+        return None
+    try:
+        r = float(text)
+    except ValueError:
+        r = math.nan
+    if not (math.isfinite(r) and r >= 1):
+        raise click.BadParameter(f"{param.opts[0]} must be a number >= 1 or none, got {value!r}")
+    return r
+
+
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="skelslice")
-def main() -> None:
+@click.option("--max-input-bytes", default="1GiB", show_default=True, metavar="SIZE", callback=_input_size,
+              help="Most uncompressed bytes the readers take from one archive member (3MF part, zip stack "
+                   "or printer-file member), and the largest array a count declared in an input file may ask "
+                   "for (e.g. 4GiB; none: no limit).")
+@click.option("--max-input-ratio", default="200", show_default=True, metavar="N", callback=_input_ratio,
+              help="Most uncompressed / compressed size of an archive member past its first MiB "
+                   "(none: no limit).")
+def main(max_input_bytes, max_input_ratio) -> None:
     """skelslice: slice skeleton-based integral surfaces into printer layers."""
+    input_limits.configure(max_input_bytes, max_input_ratio)
 
 
 def _with_compile_notices(cmd: click.Command) -> click.Command:

@@ -46,6 +46,7 @@ import numpy as np
 
 from slicer.arguments import fmt_num
 from slicer.errors import SceneError
+from slicer.input_limits import check_mesh_header
 from slicer.parts.mesh_intersect import collinear, self_intersections
 
 #: mesh file suffixes read through trimesh
@@ -165,10 +166,12 @@ def _edges(faces: np.ndarray):
     return e, inv.reshape(-1), cnt
 
 
-def _pinched(faces: np.ndarray) -> np.ndarray:
+def _pinched(faces: np.ndarray, twin: np.ndarray | None = None) -> np.ndarray:
     """Vertices whose faces form more than one fan (the surface touches itself there).
 
-    Assumes every edge is used twice in opposite directions. Corner ``(f, c)``
+    Assumes every edge is used twice in opposite directions; ``twin`` (3m,), if
+    given, is the directed edge running the other way of each of :func:`_edges`'
+    (edge ``c m + f`` runs from ``faces[f, c]`` to the next corner). Corner ``(f, c)``
     (vertex ``v = faces[f, c]``) is followed, around ``v``, by the corner of
     ``v`` in the face across the edge ``v -> faces[f, c + 1]``; the cycles of
     this permutation are the fans.
@@ -176,21 +179,25 @@ def _pinched(faces: np.ndarray) -> np.ndarray:
     m = faces.shape[0]
     n = int(faces.max()) + 1
     a = faces.ravel()                                   # corner 3f + c: vertex faces[f, c]
-    b = faces[:, [1, 2, 0]].ravel()                     # the next corner's vertex
-    key = a * n + b                                     # half-edge a -> b, keyed at its start corner
-    order = np.argsort(key)
-    # for corner (f, c) the twin half-edge is b -> a; its start corner is b's corner in face g,
-    # and v's corner there is the next one
-    twin = np.searchsorted(key[order], b * n + a)
-    g_corner = order[twin]
+    if twin is None:
+        b = faces[:, [1, 2, 0]].ravel()                 # the next corner's vertex
+        key = a * n + b                                 # half-edge a -> b, keyed at its start corner
+        order = np.argsort(key)
+        # for corner (f, c) the twin half-edge is b -> a; its start corner is b's corner in face g,
+        # and v's corner there is the next one
+        g_corner = order[np.searchsorted(key[order], b * n + a)]
+    else:                                               # twin of _edges' directed edge c m + f
+        t = twin.reshape(3, m).T.ravel()                # ... of corner 3f + c
+        g_corner = 3 * (t % m) + t // m
     nxt = (g_corner // 3) * 3 + (g_corner % 3 + 1) % 3
     lab = np.arange(3 * m)
     p = nxt
     for _ in range(int(np.ceil(np.log2(3 * m + 1))) + 1):
-        lab = np.minimum(lab, lab[p])
-        p = p[p]
-    fans = np.unique(np.stack([a, lab], axis=1), axis=0)[:, 0]
-    count = np.bincount(fans, minlength=n)
+        new = np.minimum(lab, lab[p])
+        if np.array_equal(new, lab):                    # constant on every cycle: each fan has its minimum
+            break
+        lab, p = new, p[p]
+    count = np.bincount(a[lab == np.arange(3 * m)], minlength=n)   # a fan's least corner is its label
     return np.flatnonzero(count > 1)
 
 
@@ -249,13 +256,16 @@ def mesh_problems(vertices: np.ndarray, faces: np.ndarray, check_self_intersecti
             a, b = (int(x) for x in e[k])
             out.append(f"{_n(int(mask.sum()), what)} ({why}); e.g. between vertices {a} and {b} at "
                        f"{_at(vertices, a)} and {_at(vertices, b)} mm")
-    two = cnt == 2
+    two, twin = cnt == 2, None
     if two.any():
         # a pair of uses of one edge must run in opposite directions
         sel = np.flatnonzero(two[inv])
         order = sel[np.argsort(inv[sel], kind="stable")]
         first, second = order[0::2], order[1::2]
         same = e[first, 0] == e[second, 0]
+        if sel.size == e.shape[0]:                      # every edge used twice: each one's twin
+            twin = np.empty(e.shape[0], np.int64)
+            twin[first], twin[second] = second, first
         if same.any():
             edge_ok = False
             k = int(first[np.flatnonzero(same)[0]])
@@ -263,7 +273,7 @@ def mesh_problems(vertices: np.ndarray, faces: np.ndarray, check_self_intersecti
             out.append(f"{_n(int(same.sum()), 'edge')} where the faces' orientations disagree (the mesh is not "
                        f"consistently oriented; e.g. edge {a}-{b} at {_at(vertices, a)} mm)")
     if edge_ok and not rep_corner.any():
-        pinch = _pinched(faces)
+        pinch = _pinched(faces, twin)
         if pinch.size:
             i = int(pinch[0])
             out.append(f"{_n(int(pinch.size), 'non-manifold vertex', 'non-manifold vertices')} where the surface "
@@ -323,7 +333,9 @@ def make_mesh(vertices, faces, name: str, *, check_self_intersections: bool = Tr
                 "; try --repair (it drops faces with a repeated corner and re-orients faces) or fix the mesh"
                 if _repairable(rep) else "; fix the mesh in a mesh editor")
         raise SceneError(f"{name}: not a closed solid ({rep.faces:,} faces): " + "; ".join(rep.problems) + hint)
-    used = np.unique(f)
+    seen = np.zeros(v.shape[0], bool)
+    seen[f.ravel()] = True
+    used = np.flatnonzero(seen)                           # np.unique(f), without sorting
     if used.size != v.shape[0]:           # drop unused vertices: bounds and volume see only the surface
         remap = np.full(v.shape[0], -1, np.int64)
         remap[used] = np.arange(used.size)
@@ -434,6 +446,7 @@ def read_mesh_file(path, scale: float = 1.0, name: str | None = None, repair: bo
     if not Path(src).is_file():
         why = "Is a directory" if Path(src).is_dir() else "No such file or directory"
         raise SceneError(f"cannot read the mesh file: {why}", src)
+    check_mesh_header(src, suffix)
     import trimesh
 
     try:

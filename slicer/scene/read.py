@@ -116,6 +116,7 @@ import numpy as np
 from slicer._version import __version__
 from slicer.arguments import scene_numbers
 from slicer.errors import SceneError
+from slicer.input_limits import check_file_size
 from slicer.scene.threemf import load_3mf
 from slicer.scene.write import FORMAT_VERSION, SUFFIXES, write_scene
 from slicer.model.skeleton import DEFAULT_DEGREE, DEFAULT_SIGMA, Skeleton
@@ -262,6 +263,7 @@ def _check_radius_argument(radius) -> None:
 
 def _read_text(src: str) -> str:
     try:
+        check_file_size(src)
         raw = Path(src).read_bytes()
     except OSError as exc:
         reason = exc.strerror or str(exc)

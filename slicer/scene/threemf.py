@@ -68,17 +68,19 @@ Rules
 """
 from __future__ import annotations
 
+import ctypes
 import math
 import os
 import zipfile
 import zlib
 from dataclasses import dataclass, field
-from xml.etree import ElementTree as ET
+from xml.parsers import expat
 
 import numpy as np
 
 from slicer.arguments import scene_numbers
 from slicer.errors import SceneError
+from slicer.input_limits import MAX_TOKEN, Restart, check_allocation, check_members, feed_xml
 from slicer.parts.meshes import Mesh, make_mesh
 from slicer.model.skeleton import Skeleton
 from slicer.constants import SIMILARITY_RTOL
@@ -343,12 +345,49 @@ def _object_label(obj) -> str:
     return f"object {rid}" + (f" {name!r}" if name else "")
 
 
-def _vertices(mesh) -> np.ndarray:
-    return np.array([list(v.Coordinates) for v in mesh.GetVertices()], dtype=np.float64).reshape(-1, 3)
+#: lib3mf's Beam record (packed): Indices uint32[2], Radii float64[2], CapModes int32[2]
+_BEAM_DTYPE = np.dtype([("idx", "<u4", 2), ("rad", "<f8", 2), ("cap", "<i4", 2)])
 
 
-def _triangles(mesh) -> np.ndarray:
-    return np.array([list(t.Indices) for t in mesh.GetTriangleIndices()], dtype=np.int64).reshape(-1, 3)
+def _bulk(obj, function: str, record: str, count: int, dtype, what: str, src: str) -> np.ndarray:
+    """One lib3mf array getter (``lib3mf_meshobject_getvertices`` ...) copied straight into a numpy
+    array of ``count`` records: no Python object per vertex. The size is checked against the input
+    limit first (:func:`slicer.input_limits.check_allocation`)."""
+    import lib3mf
+
+    check_allocation(count, dtype.itemsize, what, src)
+    out = np.zeros(count, dtype)
+    struct = getattr(lib3mf.Lib3MF, record)
+    if ctypes.sizeof(struct) != dtype.itemsize:  # pragma: no cover - a lib3mf with another record layout
+        raise SceneError(f"{what}: lib3mf's {record} record has {ctypes.sizeof(struct)} bytes, not "
+                         f"{dtype.itemsize}; this lib3mf version is not supported", src)
+    buf = (struct * count).from_buffer(out) if count else (struct * 0)()
+    needed = ctypes.c_uint64(0)
+    wrapper = obj._wrapper
+    wrapper.checkError(obj, getattr(wrapper.lib, function)(obj._handle, ctypes.c_uint64(count), needed, buf))
+    if needed.value != count:  # pragma: no cover - lib3mf reports its own count
+        raise SceneError(f"{what}: lib3mf returned {needed.value:,} records, not {count:,}", src)
+    return out
+
+
+def _vertices(mesh, what: str = "vertices", src: str = "") -> np.ndarray:
+    """(n, 3) float64: the mesh object's vertices (float32 in lib3mf), in the object's unit."""
+    raw = _bulk(mesh, "lib3mf_meshobject_getvertices", "Position", mesh.GetVertexCount(), np.dtype(("<f4", (3,))),
+                what, src)
+    return raw.astype(np.float64).reshape(-1, 3)
+
+
+def _triangles(mesh, what: str = "triangles", src: str = "") -> np.ndarray:
+    """(m, 3) int64: the mesh object's triangles (vertex indices)."""
+    raw = _bulk(mesh, "lib3mf_meshobject_gettriangleindices", "Triangle", mesh.GetTriangleCount(),
+                np.dtype(("<u4", (3,))), what, src)
+    return raw.astype(np.int64).reshape(-1, 3)
+
+
+def _beams(lattice, what: str, src: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lattice's beams: indices (m, 2) int64, radii (m, 2) float64 (object unit), cap modes (m, 2) int64."""
+    raw = _bulk(lattice, "lib3mf_beamlattice_getbeams", "Beam", lattice.GetBeamCount(), _BEAM_DTYPE, what, src)
+    return raw["idx"].astype(np.int64), raw["rad"].astype(np.float64), raw["cap"].astype(np.int64)
 
 
 class _Walk:
@@ -403,7 +442,9 @@ class _Walk:
         if lattice.GetBeamCount():
             self._lattice(mesh, lattice, t, where, label)
         if n_tri:
-            self.solids.append(self.mesh(_vertices(mesh), _triangles(mesh), t, f"{where}, {label}"))
+            name = f"{where}, {label}"
+            self.solids.append(self.mesh(_vertices(mesh, f"{name}: vertices", self.src),
+                                         _triangles(mesh, f"{name}: triangles", self.src), t, name))
             self.solid_labels.append(f"{where}: {label}")
 
     def _lattice(self, mesh, lattice, t: np.ndarray, item: str, label: str) -> None:
@@ -414,11 +455,8 @@ class _Walk:
             raise SceneError(f"{where}: the lattice has balls (beam lattice balls extension); skelslice does not "
                              f"print balls", src)
         k = _radius_scale(t, item, src)
-        verts = _vertices(mesh)
-        beams = lattice.GetBeams()
-        idx = np.array([[b.Indices[0], b.Indices[1]] for b in beams], dtype=np.int64)
-        rad = np.array([[b.Radii[0], b.Radii[1]] for b in beams], dtype=np.float64)
-        caps = np.array([[b.CapModes[0], b.CapModes[1]] for b in beams], dtype=np.int64)
+        verts = _vertices(mesh, f"{where}: vertices", src)
+        idx, rad, caps = _beams(lattice, f"{where}: beams", src)
         length = np.linalg.norm(verts[idx[:, 1]] - verts[idx[:, 0]], axis=1)
         keep = ~(length < lattice.GetMinLength())
         if not keep.all():
@@ -447,15 +485,18 @@ class _Walk:
                 raise SceneError(f"{where}: the clipping mesh {_object_label(cobj)} has beams; it must be a "
                                  f"triangle mesh", src)
             self.clip_mode = "inside" if int(cmode) == 1 else "outside"
-            self.clips.append(self.mesh(_vertices(cobj), _triangles(cobj), t,
-                                        f"{where}, clipping mesh {_object_label(cobj)}"))
+            name = f"{where}, clipping mesh {_object_label(cobj)}"
+            self.clips.append(self.mesh(_vertices(cobj, f"{name}: vertices", src),
+                                        _triangles(cobj, f"{name}: triangles", src), t, name))
 
 
 # ----------------------------------------------------------------------------- XML scan
 def _scan_package(src: str) -> int:
     """Check every model part (required extensions, metadata, beams); return the number of beams.
 
-    Streams the XML (``iterparse``) so a large lattice is never held as a tree.
+    Streams the XML through expat in time linear in the part's size (see
+    :func:`slicer.input_limits.feed_xml`), so a large lattice is never held
+    as a tree; members past the input limits are refused first.
     """
     try:
         zf = zipfile.ZipFile(src)
@@ -471,18 +512,18 @@ def _scan_package(src: str) -> int:
         models = [n for n in zf.namelist() if n.lower().endswith(".model")]
         if not models:
             raise SceneError("not a 3MF package: it has no .model part (expected /3D/3dmodel.model)", src)
+        check_members(zf, src)
         for name in models:
             try:
-                with zf.open(name) as fh:
-                    total += _scan_part(fh, "/" + name, src)
+                total += _scan_part(zf, name, src)
             except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as exc:
                 raise SceneError(f"/{name}: the package is corrupt ({exc})", src) from None
     return total
 
 
-def _required(root, nsmap: dict, part: str, src: str) -> None:
+def _required(attrs: dict, nsmap: dict, part: str, src: str) -> None:
     """Refuse a model part that requires an extension skelslice does not support."""
-    for prefix in (root.get("requiredextensions") or "").split():
+    for prefix in (attrs.get("requiredextensions") or "").split():
         uri = nsmap.get(prefix)
         if uri is None:
             raise SceneError(f"{part}: required extension prefix {prefix!r} is not declared (no xmlns:{prefix})",
@@ -494,50 +535,226 @@ def _required(root, nsmap: dict, part: str, src: str) -> None:
                          f"(prefix {prefix!r}), which skelslice does not support", src)
 
 
-def _scan_part(fh, part: str, src: str) -> int:
-    obj_tag, vert_tag = f"{{{CORE_NS}}}object", f"{{{CORE_NS}}}vertex"
-    model_tag, meta_tag = f"{{{CORE_NS}}}model", f"{{{CORE_NS}}}metadata"
-    lat_tag, beam_tag = f"{{{BEAM_NS}}}beamlattice", f"{{{BEAM_NS}}}beam"
-    color_tag = f"{{{MATERIAL_NS}}}color"
-    label, n_vert, beam_no, total = "", 0, 0, 0
-    nsmap: dict[str, str] = {}
+class _PartScan:
+    """The checks of one model part, as expat start-element handlers (tags are ``"namespace local"``).
+
+    Counts each object's vertices (for the beams' indices) and triangles: a
+    solid object with 1 to 3 triangles is refused as soon as it ends, before
+    lib3mf reads its vertices.
+    """
+
+    VERTEX, TRIANGLE = f"{CORE_NS} vertex", f"{CORE_NS} triangle"
+    BEAM, OBJECT = f"{BEAM_NS} beam", f"{CORE_NS} object"
+
+    def __init__(self, part: str, src: str, parser=None, condensed: "_Condenser | None" = None):
+        self.part, self.src, self.parser, self.condensed = part, src, parser, condensed
+        self.nsmap: dict[str, str] = {}
+        self.label, self.solid, self.seen_vert, self.seen_tri, self.beam_no, self.total = "", False, 0, 0, 0, 0
+        #: where the object's <vertices> and <triangles> start in the bytes expat is given
+        self.runs: dict[bytes, list[int]] = {b"vertex": [], b"triangle": []}
+        self.others = {f"{CORE_NS} model": self._model, f"{BEAM_NS} beamlattice": self._lattice,
+                       f"{CORE_NS} metadata": self._metadata, f"{MATERIAL_NS} color": self._color,
+                       f"{CORE_NS} vertices": self._run(b"vertex"), f"{CORE_NS} triangles": self._run(b"triangle")}
+
+    def _run(self, item: bytes):
+        def start(attrs: dict) -> None:
+            if self.condensed is not None:
+                self.runs[item].append(self.parser.CurrentByteIndex)
+        return start
+
+    def _hidden(self, item: bytes) -> int:
+        """Items of the object's runs the condenser left out (each run has ended by the time it is asked)."""
+        return 0 if self.condensed is None else sum(self.condensed.counts.get(at, 0) for at in self.runs[item])
+
+    @property
+    def n_vert(self) -> int:
+        return self.seen_vert + self._hidden(b"vertex")
+
+    @property
+    def n_tri(self) -> int:
+        return self.seen_tri + self._hidden(b"triangle")
+
+    def namespace(self, prefix, uri) -> None:
+        self.nsmap.setdefault(prefix or "", uri)
+
+    def start(self, tag: str, attrs: dict) -> None:
+        if tag == self.VERTEX:
+            self.seen_vert += 1
+        elif tag == self.TRIANGLE:
+            self.seen_tri += 1
+        elif tag == self.BEAM:
+            self._beam(attrs)
+        elif tag == self.OBJECT:
+            self.end_object()
+            name = attrs.get("name")
+            self.label = f"object {attrs.get('id')}" + (f" {name!r}" if name else "")
+            self.solid = attrs.get("type", "model") in ("model", "solidsupport")
+            self.seen_vert, self.seen_tri, self.beam_no = 0, 0, 0
+            self.runs = {b"vertex": [], b"triangle": []}
+        else:
+            check = self.others.get(tag)
+            if check is not None:
+                check(attrs)
+
+    def end_object(self) -> None:
+        """Refuse the object just read if it is a solid with too few triangles to close."""
+        n_tri = self.n_tri
+        if self.solid and 0 < n_tri < 4:
+            raise SceneError(f"{self.part}, {self.label}: not a closed solid: {n_tri} triangles "
+                             f"({self.n_vert:,} vertices); a closed surface needs at least 4", self.src)
+
+    def _model(self, attrs: dict) -> None:
+        _required(attrs, self.nsmap, self.part, self.src)
+
+    def _lattice(self, attrs: dict) -> None:
+        _radius(attrs.get("radius"), "radius", f"{self.part}, {self.label}, beamlattice", self.src, required=True)
+
+    def _metadata(self, attrs: dict) -> None:
+        if attrs.get("name") is None:
+            raise SceneError(f"{self.part}: a <metadata> element has no name attribute (it is required)", self.src)
+
+    def _color(self, attrs: dict) -> None:
+        if attrs.get("color") is None:
+            raise SceneError(f"{self.part}: a <m:color> element has no color attribute (it is required)", self.src)
+
+    def _beam(self, attrs: dict) -> None:
+        src = self.src
+        where = f"{self.part}, {self.label}, beam {self.beam_no}"
+        n_vert = self.n_vert
+        v1 = _index(attrs.get("v1"), "v1", n_vert, where, src)
+        v2 = _index(attrs.get("v2"), "v2", n_vert, where, src)
+        if v1 == v2:
+            raise SceneError(f"{where}: v1 = v2 = {v1}: a beam joins a vertex to itself", src)
+        for attr in ("r1", "r2"):
+            _radius(attrs.get(attr), attr, where, src, required=False)
+        self.beam_no += 1
+        self.total += 1
+
+
+def _scan_part(zf: zipfile.ZipFile, name: str, src: str) -> int:
+    """Scan one model part: first with its vertex and triangle runs condensed (:class:`_Condenser`),
+    again on its own bytes when the condenser cannot vouch for a run."""
     try:
-        for event, el in ET.iterparse(fh, events=("start-ns", "start", "end")):
-            if event == "start-ns":
-                prefix, uri = el
-                nsmap.setdefault(prefix, uri)
-                continue
-            tag = el.tag
-            if event == "start":
-                if tag == model_tag:
-                    _required(el, nsmap, part, src)
-                elif tag == obj_tag:
-                    name = el.get("name")
-                    label = f"object {el.get('id')}" + (f" {name!r}" if name else "")
-                    n_vert, beam_no = 0, 0
-                elif tag == lat_tag:
-                    _radius(el.get("radius"), "radius", f"{part}, {label}, beamlattice", src, required=True)
-                elif tag == meta_tag and el.get("name") is None:
-                    raise SceneError(f"{part}: a <metadata> element has no name attribute (it is required)", src)
-                elif tag == color_tag and el.get("color") is None:
-                    raise SceneError(f"{part}: a <m:color> element has no color attribute (it is required)", src)
-                continue
-            if tag == vert_tag:
-                n_vert += 1
-            elif tag == beam_tag:
-                where = f"{part}, {label}, beam {beam_no}"
-                v1 = _index(el.get("v1"), "v1", n_vert, where, src)
-                v2 = _index(el.get("v2"), "v2", n_vert, where, src)
-                if v1 == v2:
-                    raise SceneError(f"{where}: v1 = v2 = {v1}: a beam joins a vertex to itself", src)
-                for attr in ("r1", "r2"):
-                    _radius(el.get(attr), attr, where, src, required=False)
-                beam_no += 1
-                total += 1
-            el.clear()  # keep memory flat: children of finished elements are dropped
-    except ET.ParseError as exc:
+        return _scan_once(zf, name, src, _Condenser())
+    except Restart:
+        return _scan_once(zf, name, src, None)
+
+
+def _scan_once(zf: zipfile.ZipFile, name: str, src: str, condenser) -> int:
+    part = "/" + name
+    parser = expat.ParserCreate(namespace_separator=" ")
+    scan = _PartScan(part, src, parser, condenser)
+    parser.StartNamespaceDeclHandler = scan.namespace
+    parser.StartElementHandler = scan.start
+    try:
+        with zf.open(name) as fh:
+            feed_xml(parser, fh, zf.getinfo(name), part, src, transform=condenser)
+    except expat.ExpatError as exc:
+        if condenser is not None:
+            raise Restart() from None                   # the error is named on the part's own bytes
         raise SceneError(f"{part}: invalid XML ({exc})", src) from None
-    return total
+    scan.end_object()
+    return scan.total
+
+
+class _Condenser:
+    """Leaves the items out of ``<vertices>`` and ``<triangles>`` runs before expat sees them, and counts them.
+
+    A mesh part is mostly vertex and triangle elements, whose only use to the
+    scan is their number; expat calling Python once for each of millions of
+    them was most of the scan. The condenser finds the runs in the bytes
+    (``bytes.find`` and ``bytes.count``, no Python per element), passes the
+    runs' start and end tags on, and records how many items each held, by
+    where its start tag is in the bytes expat is given (``counts``).
+
+    It vouches only for what the bytes alone decide: with no comment, CDATA
+    section or processing instruction in the part (after the XML
+    declaration), ``<vertices>`` can only be a start tag ('<' is escaped in
+    text and forbidden in attribute values), and a run may hold nothing but
+    ``<vertex`` (``<triangle``) tags and their end tags. Anything else --
+    a comment, another tag inside a run, an unfinished run at the end, an
+    item longer than :data:`slicer.input_limits.MAX_TOKEN` -- raises
+    :class:`slicer.input_limits.Restart`, and the part is scanned again on
+    its own bytes.
+    """
+
+    RUNS = {b"<vertices>": (b"</vertices>", b"<vertex", b"</vertex>"),
+            b"<triangles>": (b"</triangles>", b"<triangle", b"</triangle>")}
+    KEEP = max(len(m) for m in RUNS) - 1
+
+    def __init__(self):
+        self.counts: dict[int, int] = {}
+        self.carry = b""
+        self.out = 0                      # bytes given to expat so far
+        self.run = None                   # (end tag, item, item end, where its start tag was given) inside a run
+        self.items = 0                    # items of the current run so far
+        self.started = False
+
+    def feed(self, data: bytes) -> bytes:
+        buf = self.carry + data
+        if not self.started:
+            decl = 0
+            if buf.startswith(b"<?xml") or b"<?xml".startswith(buf):
+                decl = buf.find(b"?>") + 2
+                if decl < 2:                                 # the declaration is not whole yet
+                    if len(buf) > 4096:
+                        raise Restart()
+                    self.carry = buf
+                    return b""
+            self.started, self.carry = True, b""
+            self._specials(buf[decl:])
+            head, buf = buf[:decl], buf[decl:]
+        else:
+            self._specials(data)
+            head = b""
+        out = [head]
+        while True:
+            if self.run is None:
+                hits = [(buf.find(m), m) for m in self.RUNS]
+                at, mark = min(((i, m) for i, m in hits if i >= 0), default=(-1, None))
+                if at < 0:
+                    cut = max(0, len(buf) - self.KEEP)
+                    out.append(buf[:cut])
+                    self.carry = buf[cut:]
+                    break
+                end = at + len(mark)
+                out.append(buf[:end])
+                self.run = (*self.RUNS[mark], self.out + sum(map(len, out)) - len(mark))
+                self.items, buf = 0, buf[end:]
+            else:
+                end_tag, item, item_end, where = self.run
+                stop = buf.find(end_tag)
+                body = buf[:stop] if stop >= 0 else buf[:max(0, buf.rfind(b"<"))]
+                self._take(body, item, item_end)
+                if stop < 0:
+                    self.carry = buf[len(body):]
+                    if len(self.carry) > MAX_TOKEN:
+                        raise Restart()
+                    break
+                self.counts[where] = self.items
+                self.run, buf = None, buf[stop:]
+        given = b"".join(out)
+        self.out += len(given)
+        return given
+
+    def finish(self) -> bytes:
+        if self.run is not None:
+            raise Restart()
+        self.out += len(self.carry)
+        return self.carry
+
+    def _specials(self, data: bytes) -> None:
+        """Restart at a comment, CDATA section, declaration or processing instruction (also split between
+        pieces: the last byte before ``data`` is still in ``carry``)."""
+        if b"<!" in data or b"<?" in data or (self.carry[-1:] + data[:1]) in (b"<!", b"<?"):
+            raise Restart()
+
+    def _take(self, body: bytes, item: bytes, item_end: bytes) -> None:
+        """Count the items of a piece of a run; raise Restart if it holds anything else."""
+        n = body.count(item) - (body.count(b"<triangles") if item == b"<triangle" else 0)
+        if body.count(b"<") != n + body.count(item_end):
+            raise Restart()
+        self.items += n
 
 
 def _index(text: str | None, attr: str, n_vert: int, where: str, src: str) -> int:
