@@ -1,6 +1,8 @@
 """The job as data (SliceJob), refusals before any tracing, the public API facade."""
 from __future__ import annotations
 
+import importlib
+
 import sys
 
 import numpy as np
@@ -156,8 +158,9 @@ def test_public_api_is_importable_from_slicer():
         assert callable(getattr(slicer, name)), name
         assert getattr(slicer, name).__doc__, name
     assert slicer.run_slice is run_slice and slicer.SliceJob is SliceJob
-    # the function, not its module (importing slicer.render.rendering must not shadow it)
-    assert slicer.render is slicer.render.rendering.render
+    # the function, not the folder of the same name (importing its modules must not shadow it)
+    importlib.import_module("slicer.render.output")
+    assert slicer.render is importlib.import_module("slicer.render.rendering").render
     img = slicer.render(Skeleton([[0, 0, 0], [0, 0, 2]], [[0, 1]], [[0.5, 0.5]]), size=(9, 9), view="top")
     assert img.rgba.shape == (9, 9, 4) and img.rgba[4, 4, 3] > 0 and img.rgba[0, 0, 3] == 0
     with pytest.raises(AttributeError):

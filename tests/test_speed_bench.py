@@ -133,7 +133,8 @@ def _compile_time_module():
 @pytest.mark.parametrize("args, needle", [
     (["--repeat", "0"], "--repeat must be >= 1"),
     (["--baseline", "."], "no slicer package there"),
-    (["--jobs", "render"], "invalid choice"),
+    (["--jobs", "rendering"], "invalid choice"),
+    (["--kernels", "-1"], "--kernels >= 0"),
 ])
 def test_compile_time_refuses_bad_arguments_before_compiling_anything(tmp_path, args, needle):
     """Through the real entry point: a usage error (exit 2) naming the problem,
@@ -167,7 +168,8 @@ def test_compile_time_alternates_trees_with_a_fresh_cache_each_and_reports_media
         else:                               # the warm run: the same folder as the cold one
             assert cache == seen_caches[-1]
             first, steady = 0.25 + k, 0.0
-        return {"first_seconds": first, "steady_seconds": steady}
+        # the kernels' own compile seconds: one kernel takes the whole first call, another a second
+        return {"first_seconds": first, "steady_seconds": steady, "kernels": {"m.f": first - steady, "m.g": 1.0}}
 
     monkeypatch.setattr(ct, "_run", run)
     trees = {"a": tmp_path / "a", "b": tmp_path / "b"}
@@ -180,3 +182,5 @@ def test_compile_time_alternates_trees_with_a_fresh_cache_each_and_reports_media
     assert by["a"]["median_cached_seconds"] == 3.25
     text = ct.table(rows, ["a", "b"])
     assert "| contours | 11.0 s | 22.0 s | 3.25 s | 3.25 s |" in text
+    assert by["b"]["median_kernel_seconds"] == {"m.f": 22.0, "m.g": 1.0}        # medians per kernel, longest first
+    assert "| contours | `m.f` | 11.0 s | 100 % |" in ct.kernel_table(rows, "a", 5)
