@@ -84,8 +84,8 @@ def _square_bounds(skel, pixels: int):
 
 def _worker_trace(name: str, pixels: int, layers: int, threads: int) -> dict:
     from sample_lattices import load_sample
-    from slicer.tracer.grid import make_grid
-    from slicer.tracer.slicing import trace
+    from slicer.grid import make_grid          # the flat paths: both layouts import them (slicer._aliases)
+    from slicer.slicing import trace
 
     skel = load_sample(SAMPLE[name])
     bounds, px = _square_bounds(skel, pixels)
@@ -128,8 +128,8 @@ def _worker_render(name: str, size: int, threads: int) -> dict:
 
 def _worker_warm(threads: int) -> dict:
     from sample_lattices import load_sample
-    from slicer.tracer.grid import make_grid
-    from slicer.tracer.slicing import trace
+    from slicer.grid import make_grid          # the flat paths: both layouts import them (slicer._aliases)
+    from slicer.slicing import trace
 
     render = _render_function()
     t0 = time.perf_counter()
