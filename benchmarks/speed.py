@@ -100,11 +100,12 @@ def _worker_trace(name: str, pixels: int, layers: int, threads: int) -> dict:
 
 
 def _render_function():
-    """``render`` of the tree under test (``slicer.render.rendering``; ``slicer.render`` in 0.1.0)."""
+    """``render`` of the tree under test (``slicer.rendering``, an alias of ``slicer.render.rendering`` in
+    the folders' layout; ``slicer.render`` in 0.1.0)."""
     import importlib
 
     try:
-        return importlib.import_module("slicer.render.rendering").render
+        return importlib.import_module("slicer.rendering").render
     except ModuleNotFoundError:
         return importlib.import_module("slicer.render").render
 
