@@ -184,3 +184,22 @@ def test_compile_time_alternates_trees_with_a_fresh_cache_each_and_reports_media
     assert "| contours | 11.0 s | 22.0 s | 3.25 s | 3.25 s |" in text
     assert by["b"]["median_kernel_seconds"] == {"m.f": 22.0, "m.g": 1.0}        # medians per kernel, longest first
     assert "| contours | `m.f` | 11.0 s | 100 % |" in ct.kernel_table(rows, "a", 5)
+
+
+def test_coherence_model_quick_classifies_as_the_tracer(tmp_path):
+    """benchmarks/coherence_model.py --quick: its modelled walks classify every centre as the
+    tracer does (the script fails otherwise), the floor is below every walk, and the JSON
+    holds the counts and no local path."""
+    out = tmp_path / "coherence.json"
+    p = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "coherence_model.py"), "--quick", "--repeat", "1",
+                        "--json", str(out)], capture_output=True, text=True, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(out.read_text())
+    assert doc["benchmark"] == "coherence_model" and doc["quick"] is True
+    assert str(tmp_path) not in json.dumps(doc)
+    (w,) = doc["windows"]
+    assert w["mismatched_columns"] == 0 and w["crossings"] > 0
+    assert 0 < w["floor"] <= min(w["today"], w["bounds"], w["coherent"])
+    assert w["coherent"] <= w["bounds"]             # the neighbour's crossings never cost evaluations here
+    assert w["boxes_inside"] == w["today_inside"]   # the box model classifies the same centres
+    assert "| coherent: neighbour's crossings first |" in p.stdout
