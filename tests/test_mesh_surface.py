@@ -31,7 +31,8 @@ from slicer.cli.app import main
 from slicer.errors import SceneError
 from slicer.model.field import evaluate, point_grid
 from slicer.meshing import mesh_scene, write_mesh
-from slicer.meshing.surface import enclosing_balls
+from slicer.meshing.certificate import enclosing_balls
+from slicer._kernels.meshing.nearest import point_triangle_sq
 from slicer.scene.threemf import load_3mf, read_3mf
 
 FD_STEP = 1e-6
@@ -248,3 +249,82 @@ def test_cli_beams_read_back(tmp_path):
     back = load_3mf(out)
     assert back.n_segments == skel.n_segments
     assert np.allclose(back.nodes, skel.nodes[np.unique(skel.segments)], atol=1e-5)
+
+
+# --- compact meshes (slicer.meshing.compact) ---
+
+def test_point_triangle_distance_matches_the_projection_reference():
+    """The kernel's closest-point distance against tests/mesh_checks.py's (projection onto the
+    plane, else the nearest edge), on random, thin and degenerate triangles."""
+    from mesh_checks import _distances as reference
+
+    rng = np.random.default_rng(4)
+    tri = rng.normal(size=(300, 3, 3))
+    tri[:40, 2] = tri[:40, 0] + 1e-7 * rng.normal(size=(40, 3))          # slivers
+    tri[40:60, 1] = tri[40:60, 0]                                          # two corners equal
+    tri[60:80, 2] = 0.5 * (tri[60:80, 0] + tri[60:80, 1])                  # collinear
+    for t in tri:
+        for p in rng.normal(scale=2.0, size=(20, 3)):
+            got = math.sqrt(point_triangle_sq(tuple(p), tuple(t[0]), tuple(t[1]), tuple(t[2])))
+            want = reference(p, t[None])[0]
+            assert abs(got - want) <= 1e-9 * (1.0 + want), (t, p, got, want)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_mesh_to_mesh_bounds_hold_and_are_tight(seed):
+    """Per triangle of a fine closed mesh, the bound of its distance to a simplified one is at
+    least the distance of any point sampled on it (exact, by the projection reference), and
+    below the target where the samples are well below it (its pieces are split until then)."""
+    from mesh_checks import point_triangle_distance
+    from slicer.meshing.compact import mesh_to_mesh, simplify
+
+    rng = np.random.default_rng(seed)
+    fine = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+    v0 = fine.vertices * rng.uniform(0.6, 1.4, 3) + rng.normal(scale=1e-3, size=fine.vertices.shape)
+    f0 = np.asarray(fine.faces, np.int64)
+    v1, f1 = simplify(v0, f0, 0.03)
+    assert 0 < len(f1) < len(f0) / 4
+    target = 0.02
+    bound = mesh_to_mesh(v0, f0, v1, f1, target, 0.1)
+    # the triangles farthest from the simplified mesh, and others
+    pick = np.concatenate([np.argsort(-bound)[:40], rng.choice(len(f0), 60, replace=False)])
+    w = rng.dirichlet([1.0, 1.0, 1.0], size=(len(pick), 40))
+    pts = np.concatenate([np.einsum("tkj,tjd->tkd", w, v0[f0[pick]]), v0[f0[pick]]], axis=1)
+    d = point_triangle_distance(pts.reshape(-1, 3), v1[f1]).reshape(len(pick), -1).max(axis=1)
+    assert (bound[pick] >= d).all(), (bound[pick] - d).min()
+    # well below the target, a triangle's pieces are split until their bound is below it
+    near = d < 0.8 * target
+    assert near.sum() >= 20 and (bound[pick][near] <= target * (1 + 1e-6)).all()
+    # the fixture is not trivial (some triangles are farther than the target), and no bound is wild
+    assert target < d.max() <= bound.max() <= 3.0 * d.max()
+
+
+def test_compact_mesh_is_far_smaller_and_certified(meshed):
+    """The struts' mesh is the simplified one: far fewer triangles than the certified uniform
+    mesh it came from, within the tolerance both ways (the acceptance checks above ran on it)."""
+    skel, tol, m = meshed("struts")
+    assert m.stats["uniform_triangles"] >= 20 * len(m.faces)
+    assert m.certified and m.surface_to_mesh >= m.stats["uniform_bound"] * 0 and m.bound <= tol
+    kept = [r for r in m.stats["simplify"] if r.get("kept")]
+    assert len(kept) == 1 and kept[0]["triangles"] == len(m.faces)
+    # surface to mesh adds the uniform mesh's side and its distance to the simplified one
+    assert m.surface_to_mesh >= kept[0]["uniform_to_compact"]
+    # it is not the uniform mesh's vertex set: the simplified mesh keeps a subset of it
+    u = mesh_scene(skel, tol=tol, compact=False)
+    assert len(u.faces) == m.stats["uniform_triangles"]
+    common = {tuple(v) for v in u.vertices}
+    assert all(tuple(v) in common for v in m.vertices)
+
+
+def test_cli_uniform_keeps_the_uniform_mesh(tmp_path):
+    scene = tmp_path / "s.json"
+    struts().save(scene)
+    outs = {}
+    for flag in ([], ["--uniform"]):
+        out = tmp_path / f"m{len(flag)}.ply"
+        res = CliRunner().invoke(main, ["mesh", str(scene), "-o", str(out), "--tol", "0.1"] + flag)
+        assert res.exit_code == 0, res.output
+        assert ("simplified from" in res.output) == (not flag)
+        outs[len(flag)] = trimesh.load(out, process=False)
+    assert len(outs[1].faces) == len(mesh_scene(struts(), tol=0.1, compact=False).faces)
+    assert len(outs[0].faces) * 10 < len(outs[1].faces)

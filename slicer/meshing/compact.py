@@ -28,6 +28,7 @@ import manifold3d
 
 from slicer._kernels.field.binning import bin_boxes
 from slicer._kernels.meshing.nearest import distance_bounds
+from slicer.meshing.certificate import SurfaceMesh, piece_distances
 
 #: simplification tolerances tried, as fractions of the budget ``tol − b0``
 FRACTIONS = (0.5, 0.25, 0.125, 0.0625)
@@ -95,11 +96,9 @@ def triangle_bounds(fld, vertices: np.ndarray, faces: np.ndarray, tol: float, li
 
     Each triangle, or each piece of it (quarters, up to :data:`DEPTH` times), is
     certified as the uniform mesh's triangles are
-    (:func:`slicer.meshing.surface.piece_distances`). With ``limit``, the work stops
+    (:func:`slicer.meshing.certificate.piece_distances`). With ``limit``, the work stops
     (and the triangles left are not certified) once a level has more pieces than that.
     """
-    from slicer.meshing.surface import piece_distances
-
     pieces = vertices[faces]
     owner = np.arange(len(faces))
     out = np.zeros(len(faces))
@@ -120,11 +119,9 @@ def triangle_bounds(fld, vertices: np.ndarray, faces: np.ndarray, tol: float, li
 
 
 def compact(fld, uniform, tol: float):
-    """The uniform certified mesh ``uniform`` (a :class:`slicer.meshing.surface.SurfaceMesh`)
+    """The uniform certified mesh ``uniform`` (a :class:`slicer.meshing.certificate.SurfaceMesh`)
     simplified and certified again within ``tol``, or None when no simplification certifies
     or saves triangles."""
-    from slicer.meshing.surface import SurfaceMesh
-
     budget = tol - uniform.surface_to_mesh
     if not budget > 0.0 or not len(uniform.faces):
         return None

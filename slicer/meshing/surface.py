@@ -25,7 +25,7 @@
    ``|F − 1| <= e_T = max_v |F(v) − 1| + H_T ρ²/2`` on T, with ``H_T``
    bounding them in T's plane over the ball; along ``∇F(c)`` the slope is at
    least ``g_T = ‖∇F(c)‖ − H (ρ + s)`` within ``s`` of T (``s <= tol``, a
-   few sizes tried: :func:`_distances`), so every point of T is within
+   few sizes tried: :func:`slicer.meshing.certificate.distances_to_surface`), so every point of T is within
    ``e_T / g_T`` of the surface when that is at most s.
    *Surface to mesh:* in a band tetrahedron, the outside part is in the
    convex hull of its outside corners (F < 1) and its vertices
@@ -51,16 +51,15 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from itertools import permutations
 
 import numpy as np
-import trimesh
 
-from slicer._kernels.meshing.ballbounds import ball_bounds
 from slicer.arguments import integer, positive_number
 from slicer.errors import OptionError, SceneError
-from slicer.model.field import evaluate, point_grid
+from slicer.meshing.certificate import MeshField, SurfaceMesh, distances_to_surface, piece_distances
+from slicer.meshing.compact import compact as simplified
 from slicer.parts.part import Part
 from slicer.model.skeleton import Skeleton
 
@@ -90,70 +89,6 @@ def _tetrahedra() -> np.ndarray:
 
 
 _TETS = _tetrahedra()            # (6, 4) corner numbers
-
-
-@dataclass
-class SurfaceMesh:
-    """A certified mesh of a lattice's surface (see :func:`mesh_scene`).
-
-    Attributes
-    ----------
-    vertices : (v, 3) float64, mm
-    faces : (t, 3) int64
-        Counter-clockwise seen from outside (outward normals).
-    tol : float, mm
-        The tolerance asked for.
-    bound : float, mm
-        The certified two-sided Hausdorff distance between the mesh and the
-        surface ``F = 1`` (inf when not certified).
-    mesh_to_surface, surface_to_mesh : float, mm
-        Its two sides.
-    cell : float, mm
-        Side ``h`` of the band's cubes.
-    stats : dict
-        Counts (band cubes, settled cubes, field evaluations), seconds, attempts.
-    """
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    tol: float
-    bound: float
-    mesh_to_surface: float
-    surface_to_mesh: float
-    cell: float
-    stats: dict = field(default_factory=dict)
-
-    @property
-    def certified(self) -> bool:
-        """Whether ``bound <= tol``."""
-        return bool(self.bound <= self.tol)
-
-    def trimesh(self):
-        """The mesh as a :class:`trimesh.Trimesh` (not processed: vertices and faces as they are)."""
-        return trimesh.Trimesh(self.vertices, self.faces, process=False)
-
-
-class _Field:
-    """The field of one skeleton, with its support grid and counters."""
-
-    def __init__(self, skel: Skeleton):
-        self.skel = skel
-        self.table, self.grid = point_grid(skel)
-        self.points = 0
-        self.balls = 0
-
-    def values(self, p: np.ndarray, gradient: bool = False):
-        self.points += len(p)
-        return evaluate(self.skel, p, gradient=gradient)
-
-    def balls_bounds(self, centres: np.ndarray, radii: np.ndarray, normals: np.ndarray | None = None):
-        """``(U, L, H, H_P)`` over the balls (:func:`slicer._kernels.meshing.ballbounds.ball_bounds`)."""
-        self.balls += len(centres)
-        g, s = self.grid, self.skel
-        nu = np.zeros((len(centres), 3)) if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
-        return ball_bounds(self.table, g.offsets, g.ids, g.origin, g.cell, g.dims,
-                           np.ascontiguousarray(centres, dtype=np.float64), np.ascontiguousarray(radii, np.float64),
-                           nu, s.degree, s.sigma, s.normalisation)
 
 
 def lattice_of(scene) -> Skeleton:
@@ -203,7 +138,7 @@ def _grid(skel: Skeleton, h: float) -> _Grid:
     return _Grid(centre - 0.5 * coarse * side, h, levels, coarse)
 
 
-def _settle(fld: _Field, c: np.ndarray, r: float):
+def _settle(fld: MeshField, c: np.ndarray, r: float):
     """Cube verdicts from their balls ``B(c, r)``: ``(inside, outside)`` boolean arrays."""
     f, g = fld.values(c, gradient=True)
     U, L, H, _ = fld.balls_bounds(c, np.full(len(c), r))
@@ -213,7 +148,7 @@ def _settle(fld: _Field, c: np.ndarray, r: float):
     return lo > 1.0, hi < 1.0
 
 
-def _band(fld: _Field, grid: _Grid):
+def _band(fld: MeshField, grid: _Grid):
     """The finest cubes the octree cannot settle, (b, 3) int64 indices, and the settled counts."""
     idx = np.stack(np.meshgrid(*[np.arange(n) for n in grid.coarse], indexing="ij"), -1).reshape(-1, 3)
     counts = {"inside": 0, "outside": 0}
@@ -232,7 +167,7 @@ def _band(fld: _Field, grid: _Grid):
     return idx[order], counts
 
 
-def _roots(fld: _Field, a: np.ndarray, b: np.ndarray, fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
+def _roots(fld: MeshField, a: np.ndarray, b: np.ndarray, fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
     """Points of F = 1 on the segments ``a``..``b`` (``fa >= 1 > fb``): the Illinois
     variant of regula falsi, which keeps the root bracketed."""
     a, b = a.copy(), b.copy()
@@ -259,7 +194,7 @@ def _roots(fld: _Field, a: np.ndarray, b: np.ndarray, fa: np.ndarray, fb: np.nda
     return a + w[:, None] * (b - a)
 
 
-def _triangles(fld: _Field, grid: _Grid, band: np.ndarray):
+def _triangles(fld: MeshField, grid: _Grid, band: np.ndarray):
     """Marching tetrahedra on the band's cubes: vertices (v, 3), outward faces (t, 3) and
     the band cube of each face (t,)."""
     dims = grid.coarse * (1 << grid.levels) + 1
@@ -306,34 +241,6 @@ def _triangles(fld: _Field, grid: _Grid, band: np.ndarray):
     return verts, faces, owner
 
 
-def enclosing_balls(tri: np.ndarray):
-    """Smallest balls holding triangles: centres (t, 3) and radii (t,), mm.
-
-    For an acute triangle, its circumcircle; otherwise the ball on its
-    longest edge.
-    """
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    ab, ac = b - a, c - a
-    n = np.cross(ab, ac)
-    nn = np.einsum("ij,ij->i", n, n)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        off = (np.cross(n, ab) * np.einsum("ij,ij->i", ac, ac)[:, None]
-               + np.cross(ac, n) * np.einsum("ij,ij->i", ab, ab)[:, None]) / (2.0 * nn[:, None])
-    centre = a + off
-    radius = np.linalg.norm(off, axis=1)
-    edges = np.stack([np.linalg.norm(b - c, axis=1), np.linalg.norm(c - a, axis=1), np.linalg.norm(a - b, axis=1)], 1)
-    longest = edges.argmax(axis=1)
-    e2 = edges**2
-    big = e2[np.arange(len(tri)), longest]
-    obtuse = ~(2.0 * big < e2.sum(axis=1)) | ~(nn > 0)
-    mids = 0.5 * (tri[np.arange(len(tri)), (longest + 1) % 3] + tri[np.arange(len(tri)), (longest + 2) % 3])
-    centre = np.where(obtuse[:, None], mids, centre)
-    radius = np.where(obtuse, 0.5 * np.sqrt(big), radius)
-    # rounding: the ball must hold all three corners
-    radius = np.maximum(radius, np.linalg.norm(tri - centre[:, None, :], axis=2).max(axis=1)) * (1.0 + 1e-12)
-    return centre, radius
-
-
 def _neighbourhood_max(band: np.ndarray, value: np.ndarray) -> np.ndarray:
     """For each band cube, the largest ``value`` over the band cubes of its 3 x 3 x 3 block."""
     span = band.max(axis=0) + 3 if len(band) else np.ones(3, np.int64)
@@ -351,50 +258,11 @@ def _neighbourhood_max(band: np.ndarray, value: np.ndarray) -> np.ndarray:
     return out
 
 
-#: how far along the gradient the surface is looked for, as fractions of the largest reach
-REACH_STEPS = (0.125, 0.5, 1.0)
-
-
-def _distances(fld: _Field, centres: np.ndarray, radii: np.ndarray, e: np.ndarray, g: np.ndarray,
-               cap: float) -> np.ndarray:
-    """Certified distances from sets to the surface along the gradient (inf: not certified).
-
-    Each set lies in the ball ``B(c, r)`` and has ``|F − 1| <= e`` (or the matching
-    one-sided statement); ``g = ‖∇F(c)‖``. Within ``B(c, r + s)`` the slope along
-    ``∇F(c)`` is at least ``g − H (r + s)``, so the surface (or the crossing) is within
-    ``e / (g − H (r + s))`` of every point of the set when that is at most ``s``. The
-    reach s is tried at each of :data:`REACH_STEPS` times ``cap`` (a smaller ball gives a
-    smaller H), the first that certifies kept.
-    """
-    out = np.full(len(e), np.inf)
-    todo = np.arange(len(e))
-    for frac in REACH_STEPS:
-        if not len(todo):
-            break
-        s = cap * frac
-        _, _, H, _ = fld.balls_bounds(centres[todo], radii[todo] + s)
-        slope = g[todo] - H * (radii[todo] + s)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            d = np.where(slope > 0, e[todo] / slope, np.inf)
-        ok = d <= s
-        out[todo[ok]] = d[ok]
-        todo = todo[~ok]
-    return out
-
-
-def _certify(fld: _Field, grid: _Grid, band: np.ndarray, verts: np.ndarray, faces: np.ndarray, owner: np.ndarray,
+def _certify(fld: MeshField, grid: _Grid, band: np.ndarray, verts: np.ndarray, faces: np.ndarray, owner: np.ndarray,
              tol: float):
     """The two sides of the certified bound (module docstring, step 3)."""
-    tri = verts[faces]
-    m, R = enclosing_balls(tri)
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    ln = np.linalg.norm(n, axis=1)
-    n = np.where(ln[:, None] > 0, n / np.where(ln > 0, ln, 1.0)[:, None], 0.0)
     resid = np.abs(fld.values(verts)[0] - 1.0)
-    _, _, _, HP = fld.balls_bounds(m, R, n)
-    e = (resid[faces].max(axis=1) + 0.5 * HP * R * R) * (1.0 + 1e-9)
-    _, g = fld.values(m, gradient=True)
-    d_tri = _distances(fld, m, R, e, np.linalg.norm(g, axis=1), tol)
+    d_tri = piece_distances(fld, verts[faces], tol, resid[faces])
     # surface to mesh: per band cube, from its 3 x 3 x 3 block's deviation bounds
     r = 0.5 * math.sqrt(3.0) * grid.h
     cc = grid.centres(band, 0)
@@ -404,14 +272,15 @@ def _certify(fld: _Field, grid: _Grid, band: np.ndarray, verts: np.ndarray, face
     if len(faces):
         np.maximum.at(worst, owner, resid[faces].max(axis=1))
     delta = _neighbourhood_max(band, (worst + 0.5 * Hr * r * r) * (1.0 + 1e-9))
-    d_cell = _distances(fld, cc, np.full(len(cc), r), delta, np.linalg.norm(gc, axis=1), min(tol, grid.h))
+    d_cell = distances_to_surface(fld, cc, np.full(len(cc), r), delta, np.linalg.norm(gc, axis=1), min(tol, grid.h))
     a = float(d_tri.max()) if len(d_tri) else 0.0
     b = float(d_cell.max()) if len(d_cell) else 0.0
     return a, b, {"uncertified_triangles": int(np.isinf(d_tri).sum()),
                   "uncertified_cubes": int(np.isinf(d_cell).sum())}
 
 
-def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attempts: int = ATTEMPTS) -> SurfaceMesh:
+def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attempts: int = ATTEMPTS,
+               compact: bool = True) -> SurfaceMesh:
     """Mesh the solid ``F >= 1`` of a lattice, with a certified Hausdorff bound.
 
     Parameters
@@ -426,6 +295,10 @@ def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attem
         and the thinnest radius, ``0.4 sqrt(tol r_min)``).
     attempts : int
         Attempts, each with a smaller cube when the bound is not certified.
+    compact : bool
+        Simplify the certified uniform mesh and certify the result again
+        (:mod:`slicer.meshing.compact`): far fewer triangles within the same
+        tolerance. False keeps the uniform mesh of marching tetrahedra.
 
     Returns
     -------
@@ -458,7 +331,7 @@ def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attem
     skel = lattice_of(scene)
     r_min = float(skel.radii.min())
     h = positive_number(cell, "cell") if cell is not None else 0.4 * math.sqrt(tol * r_min)
-    fld = _Field(skel)
+    fld = MeshField(skel)
     start = time.perf_counter()
     out = None
     for attempt in range(1, attempts + 1):
@@ -474,6 +347,8 @@ def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attem
         if bound <= tol:
             break
         h *= min(0.85, max(0.5, 0.95 * math.sqrt(tol / bound))) if math.isfinite(bound) else 0.7
+    if compact and out.certified:
+        out = simplified(fld, out, tol) or out
     out.stats["seconds"] = time.perf_counter() - start
     return out
 

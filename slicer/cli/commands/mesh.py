@@ -23,13 +23,17 @@ from slicer.cli.commands.options import blend_option, load_part_from, part_input
 @click.option("--beams", is_flag=True,
               help="Write the skeleton as a 3MF Beam Lattice (beams with their end radii, the part's clipping "
                    "and solid meshes) instead of meshing the surface.")
+@click.option("--uniform", is_flag=True,
+              help="Keep the uniform mesh of marching tetrahedra: equal triangles everywhere, not simplified "
+                   "(by default the certified uniform mesh is simplified and certified again).")
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="Threads (default: all cores).")
 @radius_option
 @part_options
 @blend_option
 @click.option("--force", is_flag=True, help="Replace an existing output (never the input).")
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing on success.")
-def command(scene, out, tol, beams, threads, radius, solids, clips_inside, clips_outside, repair, blend, force, quiet):
+def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_inside, clips_outside, repair, blend, force,
+            quiet):
     """Mesh SCENE's surface with a certified Hausdorff bound, or write its skeleton as a 3MF beam lattice.
 
     The surface mesh is closed, consistently wound and manifold; the command
@@ -54,14 +58,15 @@ def command(scene, out, tol, beams, threads, radius, solids, clips_inside, clips
     mesh_format(out)
     check_destination(out, force)
     with numba_threads(threads):
-        m = mesh_scene(part, tol=tol)
+        m = mesh_scene(part, tol=tol, compact=not uniform)
     write_mesh(m.vertices, m.faces, out, force=force)
     st = m.stats
     if not quiet:
         click.echo(f"{len(m.faces):,} triangles, {len(m.vertices):,} vertices -> {out}; certified Hausdorff bound "
                    f"{m.bound:.4g} mm (mesh to surface {m.mesh_to_surface:.4g}, surface to mesh "
                    f"{m.surface_to_mesh:.4g}; tolerance {tol:g}), cubes of {m.cell:.4g} mm, {st['attempts']} "
-                   f"attempt(s), {st['seconds']:.1f} s")
+                   f"attempt(s)" + (f", simplified from {st['uniform_triangles']:,} uniform triangles"
+                                    if "uniform_triangles" in st else "") + f", {st['seconds']:.1f} s")
     if not m.certified:
         click.echo(f"error: the bound {m.bound:.4g} mm is above --tol {tol:g} mm after {st['attempts']} attempts; "
                    f"the mesh is written but not certified", err=True)

@@ -1,0 +1,174 @@
+"""The pieces of a mesh's certificate shared by the uniform and the compact mesh (docs/mesh.md).
+
+:class:`MeshField` holds a skeleton's field with its support grid and counts the points
+and balls it bounds; :func:`piece_distances` certifies the distance from triangles (or
+pieces of them) to the surface, through :func:`enclosing_balls` and
+:func:`distances_to_surface` (the argument is in :mod:`slicer.meshing.surface`'s
+docstring, step 3); :class:`SurfaceMesh` is the result of both meshers.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+
+from slicer._kernels.meshing.ballbounds import ball_bounds
+from slicer.model.field import evaluate, point_grid
+from slicer.model.skeleton import Skeleton
+
+
+@dataclass
+class SurfaceMesh:
+    """A certified mesh of a lattice's surface (see :func:`mesh_scene`).
+
+    Attributes
+    ----------
+    vertices : (v, 3) float64, mm
+    faces : (t, 3) int64
+        Counter-clockwise seen from outside (outward normals).
+    tol : float, mm
+        The tolerance asked for.
+    bound : float, mm
+        The certified two-sided Hausdorff distance between the mesh and the
+        surface ``F = 1`` (inf when not certified).
+    mesh_to_surface, surface_to_mesh : float, mm
+        Its two sides.
+    cell : float, mm
+        Side ``h`` of the band's cubes.
+    stats : dict
+        Counts (band cubes, settled cubes, field evaluations), seconds, attempts.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    tol: float
+    bound: float
+    mesh_to_surface: float
+    surface_to_mesh: float
+    cell: float
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def certified(self) -> bool:
+        """Whether ``bound <= tol``."""
+        return bool(self.bound <= self.tol)
+
+    def trimesh(self):
+        """The mesh as a :class:`trimesh.Trimesh` (not processed: vertices and faces as they are)."""
+        return trimesh.Trimesh(self.vertices, self.faces, process=False)
+
+
+class MeshField:
+    """The field of one skeleton, with its support grid and counters."""
+
+    def __init__(self, skel: Skeleton):
+        self.skel = skel
+        self.table, self.grid = point_grid(skel)
+        self.points = 0
+        self.balls = 0
+
+    def values(self, p: np.ndarray, gradient: bool = False):
+        self.points += len(p)
+        return evaluate(self.skel, p, gradient=gradient)
+
+    def balls_bounds(self, centres: np.ndarray, radii: np.ndarray, normals: np.ndarray | None = None):
+        """``(U, L, H, H_P)`` over the balls (:func:`slicer._kernels.meshing.ballbounds.ball_bounds`)."""
+        self.balls += len(centres)
+        g, s = self.grid, self.skel
+        nu = np.zeros((len(centres), 3)) if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
+        return ball_bounds(self.table, g.offsets, g.ids, g.origin, g.cell, g.dims,
+                           np.ascontiguousarray(centres, dtype=np.float64), np.ascontiguousarray(radii, np.float64),
+                           nu, s.degree, s.sigma, s.normalisation)
+
+
+def enclosing_balls(tri: np.ndarray):
+    """Smallest balls holding triangles: centres (t, 3) and radii (t,), mm.
+
+    For an acute triangle, its circumcircle; otherwise the ball on its
+    longest edge.
+    """
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, ac = b - a, c - a
+    n = np.cross(ab, ac)
+    nn = np.einsum("ij,ij->i", n, n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        off = (np.cross(n, ab) * np.einsum("ij,ij->i", ac, ac)[:, None]
+               + np.cross(ac, n) * np.einsum("ij,ij->i", ab, ab)[:, None]) / (2.0 * nn[:, None])
+    centre = a + off
+    radius = np.linalg.norm(off, axis=1)
+    edges = np.stack([np.linalg.norm(b - c, axis=1), np.linalg.norm(c - a, axis=1), np.linalg.norm(a - b, axis=1)], 1)
+    longest = edges.argmax(axis=1)
+    e2 = edges**2
+    big = e2[np.arange(len(tri)), longest]
+    obtuse = ~(2.0 * big < e2.sum(axis=1)) | ~(nn > 0)
+    mids = 0.5 * (tri[np.arange(len(tri)), (longest + 1) % 3] + tri[np.arange(len(tri)), (longest + 2) % 3])
+    centre = np.where(obtuse[:, None], mids, centre)
+    radius = np.where(obtuse, 0.5 * np.sqrt(big), radius)
+    # rounding: the ball must hold all three corners
+    radius = np.maximum(radius, np.linalg.norm(tri - centre[:, None, :], axis=2).max(axis=1)) * (1.0 + 1e-12)
+    return centre, radius
+
+
+#: how far along the gradient the surface is looked for, as fractions of the largest reach
+REACH_STEPS = (0.0625, 0.125, 0.25, 0.5, 1.0)
+
+
+def distances_to_surface(fld: MeshField, centres: np.ndarray, radii: np.ndarray, e: np.ndarray, g: np.ndarray,
+               cap: float) -> np.ndarray:
+    """Certified distances from sets to the surface along the gradient (inf: not certified).
+
+    Each set lies in the ball ``B(c, r)`` and has ``|F − 1| <= e`` (or the matching
+    one-sided statement); ``g = ‖∇F(c)‖``. Within ``B(c, r + s)`` the slope along
+    ``∇F(c)`` is at least ``g − H (r + s)``, so the surface (or the crossing) is within
+    ``e / (g − H (r + s))`` of every point of the set when that is at most ``s``. The
+    reach s is tried at each of :data:`REACH_STEPS` times ``cap`` (a smaller ball gives a
+    smaller H), the first that certifies kept.
+    """
+    out = np.full(len(e), np.inf)
+    todo = np.arange(len(e))
+    for frac in REACH_STEPS:
+        if not len(todo):
+            break
+        s = cap * frac
+        _, _, H, _ = fld.balls_bounds(centres[todo], radii[todo] + s)
+        slope = g[todo] - H * (radii[todo] + s)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = np.where(slope > 0, e[todo] / slope, np.inf)
+        ok = d <= s
+        out[todo[ok]] = d[ok]
+        todo = todo[~ok]
+    return out
+
+
+def piece_distances(fld: MeshField, tri: np.ndarray, tol: float, resid: np.ndarray | None = None) -> np.ndarray:
+    """Certified distance from each triangle's points to the surface (module docstring,
+    step 3, *mesh to surface*).
+
+    Parameters
+    ----------
+    tri : (t, 3, 3) float64, mm
+        Triangles (or pieces of triangles).
+    tol : float, mm
+        The largest distance looked for.
+    resid : (t, 3) float64, optional
+        ``|F − 1|`` at the corners, when already known.
+
+    Returns
+    -------
+    (t,) float64, mm
+        The bound, at most ``tol``; inf where not certified.
+    """
+    if resid is None:
+        resid = np.abs(fld.values(tri.reshape(-1, 3))[0] - 1.0).reshape(-1, 3)
+    m, R = enclosing_balls(tri)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    ln = np.linalg.norm(n, axis=1)
+    n = np.where(ln[:, None] > 0, n / np.where(ln > 0, ln, 1.0)[:, None], 0.0)
+    _, _, _, HP = fld.balls_bounds(m, R, n)
+    e = (resid.max(axis=1) + 0.5 * HP * R * R) * (1.0 + 1e-9)
+    _, g = fld.values(m, gradient=True)
+    return distances_to_surface(fld, m, R, e, np.linalg.norm(g, axis=1), tol)
+
+
+__all__ = ["SurfaceMesh", "MeshField", "enclosing_balls", "distances_to_surface", "piece_distances", "REACH_STEPS"]
