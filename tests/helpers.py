@@ -285,6 +285,10 @@ NOISE = 1e-12
 #: the compiled field's accuracy relative to the reference (tests/test_field.py,
 #: validation/stiff.py: 1e-10; degree 16: 5e-9)
 REL, REL16 = 1e-10, 5e-9
+#: the compiled field's absolute accuracy (as in :func:`arbitrate`): where a ray only grazes a
+#: support (tangent to it), the closed form and the reference give zero only to rounding
+#: (values of 1e-24 to 1e-22 on a degree-2 kernel), so "no field" means "at most this"
+FIELD_ZERO = 1e-14
 
 
 class Ray:
@@ -341,7 +345,7 @@ class Ray:
 def _monotone_violations(f, sign, scale):
     """Indices i where f[i + 1] - f[i] goes against ``sign`` by more than NOISE * scale."""
     df = np.diff(f)
-    return np.flatnonzero(sign * df < -NOISE * scale)
+    return np.flatnonzero(sign * df < -(NOISE * scale + FIELD_ZERO))
 
 
 def arbitrate(ray, t, f, what):
@@ -363,7 +367,7 @@ def assert_monotone(ray, t, f, sign, scale, what):
     for i in _monotone_violations(f, sign, scale)[:4]:
         w = np.arange(max(0, i - 3), min(len(t), i + 5))
         fr = arbitrate(ray, t[w], f[w], what)
-        assert np.all(sign * np.diff(fr) >= -NOISE * scale), (
+        assert np.all(sign * np.diff(fr) >= -(NOISE * scale + FIELD_ZERO)), (
             f"{what}: the field is not monotone ({'up' if sign > 0 else 'down'}) near t = {t[i]!r}: "
             f"reference {fr.tolist()}; {ray.describe()}")
 
@@ -378,7 +382,7 @@ def assert_unimodal(ray, t, f, what):
     assert_monotone(ray, t[hi - 1:], f[hi - 1:], -1, fm, what)
     def one_peak(v):
         k = int(np.argmax(v))
-        return np.all(np.diff(v[:k + 1]) >= -NOISE * fm) and np.all(np.diff(v[k:]) <= NOISE * fm)
+        return np.all(np.diff(v[:k + 1]) >= -(NOISE * fm + FIELD_ZERO)) and np.all(np.diff(v[k:]) <= NOISE * fm + FIELD_ZERO)
 
     if not one_peak(f[lo:hi]):
         fr = arbitrate(ray, t[lo:hi], f[lo:hi], what)
@@ -399,19 +403,19 @@ def _check_ray(ray, pieces):
     reach = L + 2 * ray.skel.sigma * ray.seg[0, 9]
     if not ray.hit:
         t = np.linspace(-reach, 2 * reach, DENSE)
-        assert ray.field(t).max() == 0.0, f"ray_support missed a ray the field reaches; {ray.describe()}"
+        assert ray.field(t).max() <= FIELD_ZERO, f"ray_support missed a ray the field reaches; {ray.describe()}"
         return None
     tin, tout, tstar, fmax = (ray.rec[0, k] for k in (H_TIN, H_TOUT, H_TSTAR, H_FMAX))
     assert tin < tout
     # nothing of the field outside [t_in, t_out]
     outside = np.concatenate([np.linspace(tin - reach, tin, 400), np.linspace(tout, tout + reach, 400)])
     f_out = ray.field(outside)
-    assert f_out.max() == 0.0, (f"field {f_out.max()!r} at t = {outside[np.argmax(f_out)]!r} outside "
+    assert f_out.max() <= FIELD_ZERO, (f"field {f_out.max()!r} at t = {outside[np.argmax(f_out)]!r} outside "
                                 f"[t_in, t_out] = [{tin!r}, {tout!r}]; {ray.describe()}")
     t = np.linspace(tin, tout, DENSE)
     f = ray.field(t)
-    assert f.max() <= fmax, f"field {f.max()!r} above H_FMAX {fmax!r}; {ray.describe()}"
-    if f.max() == 0.0:
+    assert f.max() <= fmax + FIELD_ZERO, f"field {f.max()!r} above H_FMAX {fmax!r}; {ray.describe()}"
+    if f.max() <= FIELD_ZERO:
         return f
     assert_unimodal(ray, t, f, "whole ray")
     cuts = [(tin, tstar), (tstar, tout), (tin, tout)]

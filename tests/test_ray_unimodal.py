@@ -13,7 +13,9 @@ L = sigma |r1 - r0|; A = 0: the ray parallel to a generator of the support
 cone) and rays along the axis, and compare with dense sampling of the
 field (the checks: ``check_ray`` in tests/helpers.py):
 
-* the field is zero outside ``[t_in, t_out]`` (a miss is a real miss);
+* the field is zero outside ``[t_in, t_out]`` (a miss is a real miss), to the compiled
+  field's absolute accuracy (``FIELD_ZERO``, 1e-14: a ray tangent to a support gets
+  values of about 1e-23 from the closed form, and from the reference too);
 * it is unimodal on ``[t_in, t_out]`` (non-decreasing, then non-increasing);
 * ``H_FMAX`` is never below it;
 * on every piece (cut at ``t*`` and at random points), both the unimodal and
@@ -49,6 +51,27 @@ def test_one_segment_on_any_ray(case):
 
 
 # ----------------------------------------------------------------------------- named cases
+#: rays tangent to a degree-2 support (found by the property test above on one run): the
+#: closed form and the reference give 1e-24 to 1e-22 there, zero only to rounding
+TANGENT = [
+    ([[0.0, 0.0, 0.0], [0.5403023058681398, 0.8414709848078965, 0.0]],
+     [-2.942894283863719, -2.26977218107918, -0.0027349591058476483], [0.5403023058681398, 0.8414709848078965, 0.0]),
+    ([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], [-3.5, -0.8847669175763194, -0.8829991515072357], [1.0, 0.0, 0.0]),
+    ([[0.0, 1.0, 0.0], [0.05403023058681398, 1.0841470984807897, 0.0]],
+     [-2.4566222085823926, -0.5124482947520741, -0.0027349591058476483], [0.5403023058681394, 0.8414709848078966, 0.0]),
+    ([[0.0, -1.0, 0.0], [0.9689124217106447, -0.752596040745477, 0.0]],
+     [-3.700444475783395, -0.6547887968550987, -0.006317188251823857], [0.9689124217106448, 0.247403959254523, 0.0]),
+]
+
+
+@pytest.mark.parametrize("nodes, o, d", TANGENT)
+def test_rays_tangent_to_a_support(nodes, o, d):
+    ray = Ray(Skeleton(nodes, [[0, 1]], [[1.0, 1.0]], degree=2, sigma=1.25), o, d)
+    check_ray(ray, [(0.0, 1.0)])
+    t = np.linspace(-10.0, 10.0, 2001)
+    assert ray.field(t).max() < 1e-20            # the field stays at rounding level along the whole ray
+
+
 def _critical_a_ray(r0, r1, L, sigma, off, tilt=1.0):
     """A segment along z and a ray in the xz plane at the critical angle
     (sin = sigma (r1 - r0) / L): the ray is parallel to one generator of the
