@@ -433,3 +433,26 @@ def test_fuzz_supports(kind, st_data):
         scene = _scene_in(folder, data)
         args = ["supports", str(scene), "-o", "sup.json", "-q", "--pixel-size", draw(PIXEL.pick(hostile))]
         _run(args + _options(draw, table, hostile), folder, allowed=(0, 2), name="supports")
+
+
+MESH_SUFFIX = [".stl", ".ply", ".obj", ".3mf", ".xyz"]
+
+
+@fuzz_settings(12)
+@given(kind=_run_kind(), st_data=st.data())
+def test_fuzz_mesh(kind, st_data):
+    """``mesh``: exit 0, 1 (the bound could not be certified, documented) or 2; a tolerance is
+    always given (the mesh's cost grows as 1/tol²), ordinary ones coarse enough to stay quick."""
+    hostile, data = kind
+    draw = st_data.draw
+    table = {"--uniform": st.booleans(), "--threads": text_int(1, 2), "--radius": text_number(0.1, 0.3),
+             "--blend": choice(["sum"], ["union", "max"]), "--force": st.booleans()}
+    with tempfile.TemporaryDirectory() as d:
+        folder = Path(d)
+        scene = _scene_in(folder, data)
+        beams = rarely(draw, 4)
+        suffix = ".3mf" if beams and not hostile else draw(st.sampled_from(MESH_SUFFIX[:4] + (MESH_SUFFIX[4:]
+                                                                                             if hostile else [])))
+        tol = text_number(0.05, 0.2, extra=["1e-6"]).pick(hostile)
+        args = ["mesh", str(scene), "-o", f"out{suffix}", "-q", "--tol", draw(tol)] + (["--beams"] if beams else [])
+        _run(args + _options(draw, table, hostile), folder, allowed=(0, 1, 2), name="mesh")

@@ -123,10 +123,13 @@ def distances_to_surface(fld: MeshField, centres: np.ndarray, radii: np.ndarray,
     ``∇F(c)`` is at least ``g − H (r + s)``, so the surface (or the crossing) is within
     ``e / (g − H (r + s))`` of every point of the set when that is at most ``s``. The
     reach s is tried at each of :data:`REACH_STEPS` times ``cap`` (a smaller ball gives a
-    smaller H), the first that certifies kept.
+    smaller H), the first that certifies kept; ``cap`` is at most the thinnest strut's
+    radius, beyond which the curvature bound only grows (a tolerance coarser than the
+    struts is then certified at that scale).
     """
     out = np.full(len(e), np.inf)
     todo = np.arange(len(e))
+    cap = min(cap, float(fld.skel.radii.min()))
     for frac in REACH_STEPS:
         if not len(todo):
             break

@@ -122,7 +122,8 @@ def compact(fld, uniform, tol: float):
     """The uniform certified mesh ``uniform`` (a :class:`slicer.meshing.certificate.SurfaceMesh`)
     simplified and certified again within ``tol``, or None when no simplification certifies
     or saves triangles."""
-    budget = tol - uniform.surface_to_mesh
+    # the certificate reaches no farther than the thinnest strut (certificate.distances_to_surface)
+    budget = min(tol, float(fld.skel.radii.min())) - uniform.surface_to_mesh
     if not budget > 0.0 or not len(uniform.faces):
         return None
     tried = []

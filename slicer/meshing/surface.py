@@ -167,6 +167,29 @@ def _band(fld: MeshField, grid: _Grid):
     return idx[order], counts
 
 
+#: the band's size is estimated before any work; a job estimated at this many times
+#: MAX_BAND is refused at once (the octree would refuse it later, after the work)
+ESTIMATE_SLACK = 16
+
+
+def _check_band_estimate(skel: Skeleton, h: float) -> None:
+    """Refuse at once a cube side whose band would be far beyond :data:`MAX_BAND`.
+
+    Every vertical line through the solid's shadow meets the surface, so the band's
+    cubes (side h) cover that shadow: there are at least shadow / h² of them. The
+    shadow is estimated from each strut's own tube (its thinner radius, projected
+    length; the largest one), not bounded, hence the slack.
+    """
+    a = skel.nodes[skel.segments[:, 0], :2]
+    b = skel.nodes[skel.segments[:, 1], :2]
+    r = skel.radii.min(axis=1)
+    shadow = float((2.0 * r * np.linalg.norm(b - a, axis=1) + np.pi * r * r).max())
+    if shadow / (h * h) > ESTIMATE_SLACK * MAX_BAND:
+        raise OptionError(f"the tolerance needs cubes of {h:.4g} mm: about {shadow / (h * h):.3g} of them near the "
+                          f"surface, far more than the {MAX_BAND:,} this version keeps in memory; ask for a larger "
+                          f"--tol")
+
+
 def _roots(fld: MeshField, a: np.ndarray, b: np.ndarray, fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
     """Points of F = 1 on the segments ``a``..``b`` (``fa >= 1 > fb``): the Illinois
     variant of regula falsi, which keeps the root bracketed."""
@@ -330,7 +353,9 @@ def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attem
     attempts = integer(attempts, "attempts", lo=1)
     skel = lattice_of(scene)
     r_min = float(skel.radii.min())
-    h = positive_number(cell, "cell") if cell is not None else 0.4 * math.sqrt(tol * r_min)
+    # cubes wider than half the thinnest strut see no more of it: a coarse tolerance starts there
+    h = positive_number(cell, "cell") if cell is not None else min(0.4 * math.sqrt(tol * r_min), 0.5 * r_min)
+    _check_band_estimate(skel, h)
     fld = MeshField(skel)
     start = time.perf_counter()
     out = None
