@@ -123,7 +123,8 @@ def compact(fld, uniform, tol: float):
     simplified and certified again within ``tol``, or None when no simplification certifies
     or saves triangles."""
     # the certificate reaches no farther than the thinnest strut (certificate.distances_to_surface)
-    budget = min(tol, float(fld.skel.radii.min())) - uniform.surface_to_mesh
+    reach = min(tol, float(fld.skel.radii.min()))
+    budget = reach - uniform.surface_to_mesh
     if not budget > 0.0 or not len(uniform.faces):
         return None
     tried = []
@@ -132,7 +133,7 @@ def compact(fld, uniform, tol: float):
         if len(f1) > GAIN * len(uniform.faces) or not len(f1):
             tried.append({"eps": frac * budget, "triangles": int(len(f1)), "kept": False})
             break
-        d01 = float(mesh_to_mesh(uniform.vertices, uniform.faces, v1, f1, budget, tol).max())
+        d01 = float(mesh_to_mesh(uniform.vertices, uniform.faces, v1, f1, budget, reach).max())
         b1 = uniform.surface_to_mesh + d01
         row = {"eps": frac * budget, "triangles": int(len(f1)), "uniform_to_compact": d01}
         tried.append(row)
