@@ -28,10 +28,11 @@ from slicer import Skeleton, generate_lattice
 from slicer._kernels.runtime.launch import numba_threads
 from slicer._kernels.meshing.ballbounds import ball_bounds
 from slicer.cli.app import main
-from slicer.errors import SceneError
+from slicer.errors import OptionError, SceneError
 from slicer.model.field import evaluate, point_grid
 from slicer.meshing import mesh_scene, write_mesh
-from slicer.meshing.certificate import enclosing_balls
+from slicer.meshing import surface as mesh_surface
+from slicer.meshing.certificate import MeshField, enclosing_balls, straight_chains
 from slicer._kernels.meshing.nearest import point_triangle_sq
 from slicer.scene.threemf import load_3mf, read_3mf
 
@@ -53,19 +54,22 @@ def hessians(skel, pts):
 unit = st.floats(-1.0, 1.0)
 
 
-@settings(max_examples=60, deadline=None, derandomize=True)
+@settings(max_examples=150, deadline=None, derandomize=True)
 @given(st.tuples(unit, unit, unit).filter(lambda v: sum(x * x for x in v) > 0.01),
        st.sampled_from([0.05, 1.0, 4.0]), st.floats(0.1, 1.0), st.floats(0.1, 1.0),
+       st.booleans(),                                        # untapered struts (their own sharper bounds)
        st.integers(1, 3),                                    # struts meeting at the node
        st.floats(0.0, 1.0), st.floats(0.0, 2.2), st.sampled_from([0.001, 0.05, 0.4]),
        st.tuples(unit, unit, unit), st.sampled_from([4, 6, 8]), st.integers(0, 2**31))
-def test_ball_bounds_hold(direction, length, r0, r1, k, t, off, r, normal, degree, seed):
+def test_ball_bounds_hold(direction, length, r0, r1, untapered, k, t, off, r, normal, degree, seed):
     rng = np.random.default_rng(seed)
     u = np.array(direction) / np.linalg.norm(direction)
     ends = [u * length] + [rng.normal(size=3) for _ in range(k - 1)]
     nodes = np.array([np.zeros(3)] + ends)
     segs = [[0, i + 1] for i in range(k)]
-    radii = [[r0, r1]] + [list(rng.uniform(0.1, 1.0, 2)) for _ in range(k - 1)]
+    if untapered:
+        r1 = r0
+    radii = [[r0, r1]] + [[q, q] if untapered else [q, rng.uniform(0.1, 1.0)] for q in rng.uniform(0.1, 1.0, k - 1)]
     skel = Skeleton(nodes, segs, radii, degree=degree)
     side = np.cross(u, rng.normal(size=3))
     side /= np.linalg.norm(side)
@@ -90,6 +94,83 @@ def test_ball_bounds_hold(direction, length, r0, r1, k, t, off, r, normal, degre
         second = np.abs(np.einsum("vi,kij,vj->kv", v, hess, v)).max()
         assert second <= HP + FD_MARGIN * (1 + HP), (second, HP)
     assert HP <= H
+
+
+@pytest.mark.parametrize("radii, radius, ratio", [((0.5, 0.5), 1e-4, 1.01), ((0.5, 0.5), 0.1, 1.01),
+                                                 ((0.45, 0.3), 1e-4, 1.1), ((0.45, 0.3), 0.05, 1.2)])
+def test_ball_bounds_are_close_on_a_strut_surface(radii, radius, ratio):
+    """On the surface of a long strut (away from its ends), the Hessian bound over a ball is
+    within ``ratio`` of the largest Hessian norm sampled in it: untapered, the exact
+    curvatures of the line; tapered, the frame about the apex (the split Hessian alone gives
+    1.85 to 2.4 times the sampled value there)."""
+    skel = Skeleton([[0, 0, -4], [0, 0, 4]], [[0, 1]], [list(radii)])
+    xs = np.linspace(0.05, 1.2, 20001)
+    x = xs[np.argmin(np.abs(evaluate(skel, np.stack([xs, 0 * xs, 0 * xs + 0.3], 1))[0] - 1.0))]
+    c = np.array([x, 0.0, 0.3])
+    table, grid = point_grid(skel)
+    _, _, H, _ = ball_bounds(table, grid.offsets, grid.ids, grid.origin, grid.cell, grid.dims, c[None],
+                             np.array([radius]), np.zeros((1, 3)), skel.degree, skel.sigma, skel.normalisation)
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    pts = np.vstack([c + d * radius * np.cbrt(rng.uniform(0, 1, 3000))[:, None], c + d[:500] * radius])
+    true = np.abs(np.linalg.eigvalsh(hessians(skel, pts))).max()
+    assert true <= H[0] + FD_MARGIN * (1 + H[0]) and H[0] <= ratio * true, (H[0], true)
+
+
+@pytest.mark.parametrize("cell", ["cubic", "octet", "bcc"])
+def test_straight_chains_join_runs_and_keep_the_field(cell):
+    """Struts continuing straight through nodes are joined (graded radii too, which stay
+    linear along z), and the joined skeleton's field is the skeleton's."""
+    skel = generate_lattice(cell, (3, 2, 2), 2.0, 0.2, radius_top=0.35)
+    lines = straight_chains(skel)
+    assert lines.n_segments < skel.n_segments
+    rng = np.random.default_rng(1)
+    lo, hi = skel.support_bounds()
+    pts = rng.uniform(lo, hi, (4000, 3))
+    a, ga = evaluate(skel, pts, gradient=True)
+    b, gb = evaluate(lines, pts, gradient=True)
+    assert np.abs(a - b).max() <= 1e-12 * (1 + np.abs(a).max())
+    assert np.abs(ga - gb).max() <= 1e-11 * (1 + np.abs(ga).max())
+    # every joined segment runs along the original ones: its length is a sum of theirs
+    total = lambda s: np.linalg.norm(s.nodes[s.segments[:, 1]] - s.nodes[s.segments[:, 0]], axis=1).sum()
+    assert total(lines) == pytest.approx(total(skel), rel=1e-12)
+
+
+def test_straight_chains_keep_bends_kinks_and_branches():
+    nodes = [[0, 0, 0], [1, 0, 0], [2, 0, 0], [2, 1, 0], [3, 0.001, 0], [1, 0, 1]]
+    # 0-1-2 straight with one radius: joined; 1-5 branches off; 2-3 bends; 2-4 almost straight on
+    # from 1-2 but not quite; the radius of 1-2 changes rate at 1 (a kink): not joined there
+    skel = Skeleton(nodes, [[0, 1], [1, 2], [2, 3], [2, 4], [1, 5]],
+                    [[0.3, 0.3], [0.3, 0.3], [0.3, 0.3], [0.3, 0.3], [0.2, 0.2]])
+    lines = straight_chains(skel)
+    assert sorted(map(tuple, lines.segments.tolist())) == [(0, 2), (1, 5), (2, 3), (2, 4)]
+    kink = Skeleton(nodes[:3], [[0, 1], [1, 2]], [[0.3, 0.4], [0.4, 0.6]])
+    assert straight_chains(kink) is kink
+    linear = Skeleton(nodes[:3], [[0, 1], [2, 1]], [[0.3, 0.4], [0.5, 0.4]])
+    assert straight_chains(linear).segments.tolist() == [[0, 2]]
+    assert straight_chains(linear).radii.tolist() == [[0.3, 0.5]]
+
+
+def test_ball_bounds_of_joined_runs_hold_in_a_lattice():
+    """The mesher's bounds (over the joined runs) hold at sampled points of random balls
+    around the nodes and struts of a graded octet lattice."""
+    skel = generate_lattice("octet", (2, 1, 1), 2.0, 0.25, radius_top=0.35)
+    fld = MeshField(skel)
+    assert fld.lines.n_segments < skel.n_segments
+    rng = np.random.default_rng(2)
+    lo, hi = skel.support_bounds()
+    centres = np.vstack([skel.nodes + rng.normal(scale=0.3, size=skel.nodes.shape), rng.uniform(lo, hi, (60, 3))])
+    radii = rng.choice([0.01, 0.05, 0.2], len(centres))
+    U, L, H, _ = fld.balls_bounds(centres, radii)
+    for c, r, u, l, h in zip(centres, radii, U, L, H):
+        d = rng.normal(size=(30, 3))
+        d /= np.linalg.norm(d, axis=1)[:, None]
+        pts = np.vstack([c, c + d * r * np.cbrt(rng.uniform(0, 1, 30))[:, None]])
+        f = evaluate(skel, pts)[0]
+        assert f.max() <= u * (1 + 1e-9) and f.min() >= l * (1 - 1e-9) - 1e-12
+        norm = np.abs(np.linalg.eigvalsh(hessians(skel, pts))).max()
+        assert norm <= h + FD_MARGIN * (1 + h), (c, r, norm, h)
 
 
 def test_enclosing_balls_are_the_smallest():
@@ -181,6 +262,44 @@ def test_threads_change_nothing():
     with numba_threads(2):
         b = mesh_scene(skel, tol=0.1)
     assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces) and a.bound == b.bound
+
+
+def canonical_faces(faces):
+    """Faces as a sorted array, each rotated to start at its smallest vertex (orientation kept)."""
+    k = faces.argmin(axis=1)
+    rot = np.stack([faces[np.arange(len(faces)), (k + i) % 3] for i in range(3)], 1)
+    return rot[np.lexsort(rot.T[::-1])]
+
+
+def test_chunks_change_nothing(monkeypatch):
+    """The band is settled, meshed and certified in chunks; chunks of 37 cubes (so that
+    chunk borders cut the surface everywhere) give the same vertices, the same faces and
+    the same bound as the default chunks."""
+    skel = struts()
+    a = mesh_scene(skel, tol=0.1, compact=False)
+    monkeypatch.setattr(mesh_surface, "CHUNK", 37)
+    b = mesh_scene(skel, tol=0.1, compact=False)
+    assert a.stats["band_cubes"] > 50 * 37
+    assert np.array_equal(a.vertices, b.vertices)
+    assert np.array_equal(canonical_faces(a.faces), canonical_faces(b.faces))
+    assert a.bound == b.bound and a.stats["triangles"] == b.stats["triangles"]
+    assert b.trimesh().is_watertight
+
+
+def test_a_retry_beyond_the_memory_limit_says_why(monkeypatch):
+    """When an attempt's cubes cannot be certified and the smaller cubes asked for would
+    exceed the band's limit, the refusal names the cubes not certified and says that a
+    larger tolerance does not help; on the first attempt it asks for a larger --tol."""
+    skel = small_lattice()
+    grid = mesh_surface._grid(skel, 0.25)
+    first = len(mesh_surface._band(MeshField(skel), grid)[0])
+    monkeypatch.setattr(mesh_surface, "MAX_BAND", int(first * 1.05))
+    with pytest.raises(OptionError, match=r"of the [\d,]+ band cubes could not be certified .* a larger --tol does "
+                                          r"not make them larger"):
+        mesh_scene(skel, tol=0.05, cell=0.25)
+    monkeypatch.setattr(mesh_surface, "MAX_BAND", first // 2)
+    with pytest.raises(OptionError, match=r"keeps in memory; ask for a larger --tol"):
+        mesh_scene(skel, tol=0.05, cell=0.25)
 
 
 def test_refusals():

@@ -59,12 +59,95 @@ class SurfaceMesh:
         return trimesh.Trimesh(self.vertices, self.faces, process=False)
 
 
+#: relative tolerance of :func:`straight_chains`' tests (collinear, radius continuing)
+CHAIN_TOL = 1e-12
+
+
+def straight_chains(skel: Skeleton) -> Skeleton:
+    """The skeleton with each straight run of segments joined into one segment: the same field.
+
+    The field is an integral over the skeleton (docs/math.md §1), so two segments
+    that meet end to end, point in opposite directions from the shared node and
+    have one linear radius along both (equal at the node, with the same rate of
+    change) are one segment of the field. A lattice's struts that continue through
+    a node become one line; the ball bounds of a line then hold its exact
+    curvatures where no ball reaches its ends, and the end terms of the pieces at
+    the node (which cancel in the field) are not counted (docs/math.md §11). Used
+    for bounds only; the field's values come from the skeleton itself.
+
+    Parameters
+    ----------
+    skel : Skeleton
+
+    Returns
+    -------
+    Skeleton
+        ``skel`` itself when nothing joins; otherwise the joined segments, then
+        the others, over the same nodes.
+    """
+    seg, rad, nodes = skel.segments, skel.radii, skel.nodes
+    vec = nodes[seg[:, 1]] - nodes[seg[:, 0]]
+    length = np.linalg.norm(vec, axis=1)
+    unit = vec / length[:, None]
+    slope = (rad[:, 1] - rad[:, 0]) / length              # radius per mm along the segment
+    partner = {}
+    ends = {}
+    for i in range(len(seg)):
+        for e in (0, 1):
+            ends.setdefault(int(seg[i, e]), []).append((i, e))
+    for node, at in ends.items():
+        for a in range(len(at)):
+            i, e = at[a]
+            if (i, e) in partner:
+                continue
+            di = unit[i] if e == 0 else -unit[i]                   # away from the node
+            si = slope[i] if e == 0 else -slope[i]
+            for b in range(a + 1, len(at)):
+                j, f = at[b]
+                if (j, f) in partner or j == i:
+                    continue
+                dj = unit[j] if f == 0 else -unit[j]
+                sj = slope[j] if f == 0 else -slope[j]
+                scale = float(max(rad[i, e], rad[j, f]))
+                if (np.linalg.norm(np.cross(di, dj)) <= CHAIN_TOL and float(di @ dj) < 0.0
+                        and abs(rad[i, e] - rad[j, f]) <= CHAIN_TOL * scale
+                        and abs(si + sj) <= CHAIN_TOL * max(1.0, abs(si), abs(sj))):
+                    partner[(i, e)] = (j, f)
+                    partner[(j, f)] = (i, e)
+                    break
+    if not partner:
+        return skel
+    used = np.zeros(len(seg), bool)
+    out_seg, out_rad = [], []
+    for i in range(len(seg)):
+        for e in (0, 1):
+            if used[i] or (i, e) in partner:
+                continue
+            # a free end: walk the run from here
+            start, r0 = int(seg[i, e]), float(rad[i, e])
+            j, f = i, e
+            while True:
+                used[j] = True
+                nxt = (j, 1 - f)
+                if nxt not in partner:
+                    break
+                j, f = partner[nxt]
+            out_seg.append((start, int(seg[j, 1 - f])))
+            out_rad.append((r0, float(rad[j, 1 - f])))
+    for i in np.flatnonzero(~used):       # (no free end: cannot happen for straight runs; kept as they are)
+        out_seg.append(tuple(int(x) for x in seg[i]))
+        out_rad.append(tuple(float(x) for x in rad[i]))
+    return Skeleton(nodes, np.array(out_seg, np.int64), np.array(out_rad), degree=skel.degree, sigma=skel.sigma)
+
+
 class MeshField:
-    """The field of one skeleton, with its support grid and counters."""
+    """The field of one skeleton, with the support grid of its straight runs
+    (:func:`straight_chains`, for the ball bounds) and counters."""
 
     def __init__(self, skel: Skeleton):
         self.skel = skel
-        self.table, self.grid = point_grid(skel)
+        self.lines = straight_chains(skel)
+        self.table, self.grid = point_grid(self.lines)
         self.points = 0
         self.balls = 0
 
@@ -75,7 +158,7 @@ class MeshField:
     def balls_bounds(self, centres: np.ndarray, radii: np.ndarray, normals: np.ndarray | None = None):
         """``(U, L, H, H_P)`` over the balls (:func:`slicer._kernels.meshing.ballbounds.ball_bounds`)."""
         self.balls += len(centres)
-        g, s = self.grid, self.skel
+        g, s = self.grid, self.lines
         nu = np.zeros((len(centres), 3)) if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
         return ball_bounds(self.table, g.offsets, g.ids, g.origin, g.cell, g.dims,
                            np.ascontiguousarray(centres, dtype=np.float64), np.ascontiguousarray(radii, np.float64),
@@ -115,7 +198,7 @@ REACH_STEPS = (0.0625, 0.125, 0.25, 0.5, 1.0)
 
 
 def distances_to_surface(fld: MeshField, centres: np.ndarray, radii: np.ndarray, e: np.ndarray, g: np.ndarray,
-               cap: float) -> np.ndarray:
+               cap: float, cover: tuple[np.ndarray, float] | None = None) -> np.ndarray:
     """Certified distances from sets to the surface along the gradient (inf: not certified).
 
     Each set lies in the ball ``B(c, r)`` and has ``|F − 1| <= e`` (or the matching
@@ -126,6 +209,11 @@ def distances_to_surface(fld: MeshField, centres: np.ndarray, radii: np.ndarray,
     smaller H), the first that certifies kept; ``cap`` is at most the thinnest strut's
     radius, beyond which the curvature bound only grows (a tolerance coarser than the
     struts is then certified at that scale).
+
+    ``cover = (sub, ρ)``, sub (k, q, 3): the sets lie in the union of the balls ``B(sub, ρ)``
+    (a cube in its eight half cubes' balls); the points within s of a set then lie in the
+    balls ``B(sub, ρ + s)``, and H is the largest over those (smaller balls, tighter bounds);
+    the slope still counts the distance ``r + s`` from c.
     """
     out = np.full(len(e), np.inf)
     todo = np.arange(len(e))
@@ -134,7 +222,12 @@ def distances_to_surface(fld: MeshField, centres: np.ndarray, radii: np.ndarray,
         if not len(todo):
             break
         s = cap * frac
-        _, _, H, _ = fld.balls_bounds(centres[todo], radii[todo] + s)
+        if cover is None:
+            _, _, H, _ = fld.balls_bounds(centres[todo], radii[todo] + s)
+        else:
+            sub, rho = cover
+            q = sub.shape[1]
+            H = fld.balls_bounds(sub[todo].reshape(-1, 3), np.full(len(todo) * q, rho + s))[2].reshape(-1, q).max(axis=1)
         slope = g[todo] - H * (radii[todo] + s)
         with np.errstate(divide="ignore", invalid="ignore"):
             d = np.where(slope > 0, e[todo] / slope, np.inf)
@@ -174,4 +267,4 @@ def piece_distances(fld: MeshField, tri: np.ndarray, tol: float, resid: np.ndarr
     return distances_to_surface(fld, m, R, e, np.linalg.norm(g, axis=1), tol)
 
 
-__all__ = ["SurfaceMesh", "MeshField", "enclosing_balls", "distances_to_surface", "piece_distances", "REACH_STEPS"]
+__all__ = ["SurfaceMesh", "MeshField", "straight_chains", "enclosing_balls", "distances_to_surface", "piece_distances", "REACH_STEPS"]

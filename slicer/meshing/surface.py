@@ -71,8 +71,12 @@ ATTEMPTS = 6
 COARSE = 16
 #: most bracketing secant (Illinois) iterations per edge root
 ROOT_STEPS = 40
-#: most band cubes (about 1.5 kB of memory each while triangles are made)
-MAX_BAND = 4_000_000
+#: most band cubes (about 0.4 kB of memory each, with their triangles, once the mesh is made)
+MAX_BAND = 12_000_000
+#: most candidate cubes at a coarser level, as a multiple of MAX_BAND (24 bytes each)
+CANDIDATES = 4
+#: cubes (or triangles, or vertices) handled at once: the working memory's unit
+CHUNK = 200_000
 
 # cube corner k = dx + 2 dy + 4 dz; the six tetrahedra around the main diagonal 000 -> 111
 _CORNERS = np.array([[(k >> 0) & 1, (k >> 1) & 1, (k >> 2) & 1] for k in range(8)], dtype=np.int64)
@@ -148,21 +152,38 @@ def _settle(fld: MeshField, c: np.ndarray, r: float):
     return lo > 1.0, hi < 1.0
 
 
+def _chunks(arrays, size: int):
+    """The rows of a list of arrays, in slices of at most ``size``."""
+    for arr in arrays:
+        for lo in range(0, len(arr), size):
+            yield arr[lo:lo + size]
+
+
 def _band(fld: MeshField, grid: _Grid):
-    """The finest cubes the octree cannot settle, (b, 3) int64 indices, and the settled counts."""
-    idx = np.stack(np.meshgrid(*[np.arange(n) for n in grid.coarse], indexing="ij"), -1).reshape(-1, 3)
+    """The finest cubes the octree cannot settle, (b, 3) int64 indices, and the settled counts.
+
+    Cubes are settled :data:`CHUNK` at a time, and the survivors of each level split into
+    their eight children, so the memory in use stays a few bytes per candidate cube.
+    """
+    cubes = [np.stack(np.meshgrid(*[np.arange(n) for n in grid.coarse], indexing="ij"), -1).reshape(-1, 3)]
     counts = {"inside": 0, "outside": 0}
     for level in range(grid.levels, -1, -1):
         side = grid.h * (1 << level)
-        ins, out = _settle(fld, grid.centres(idx, level), 0.5 * math.sqrt(3.0) * side)
-        counts["inside"] += int(ins.sum())
-        counts["outside"] += int(out.sum())
-        idx = idx[~(ins | out)]
-        if len(idx) > MAX_BAND:
-            raise OptionError(f"the tolerance needs more than {MAX_BAND:,} cubes of {side:.4g} mm near the "
-                              f"surface, more than this version keeps in memory; ask for a larger --tol")
-        if level and len(idx):
-            idx = (2 * idx[:, None, :] + _CORNERS[None]).reshape(-1, 3)
+        kept, n = [], 0
+        for part in _chunks(cubes, CHUNK if level == 0 else CHUNK // 8):
+            ins, out = _settle(fld, grid.centres(part, level), 0.5 * math.sqrt(3.0) * side)
+            counts["inside"] += int(ins.sum())
+            counts["outside"] += int(out.sum())
+            part = part[~(ins | out)]
+            if level:
+                part = (2 * part[:, None, :] + _CORNERS[None]).reshape(-1, 3)
+            n += len(part)
+            if n > MAX_BAND * (CANDIDATES if level else 1):
+                raise OptionError(f"the mesh needs more than {MAX_BAND:,} cubes of {grid.h:.4g} mm near the "
+                                  f"surface, more than this version keeps in memory")
+            kept.append(part)
+        cubes = kept
+    idx = np.concatenate(cubes) if cubes else np.zeros((0, 3), np.int64)
     order = np.lexsort((idx[:, 0], idx[:, 1], idx[:, 2]))
     return idx[order], counts
 
@@ -192,76 +213,120 @@ def _check_band_estimate(skel: Skeleton, h: float) -> None:
 
 def _roots(fld: MeshField, a: np.ndarray, b: np.ndarray, fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
     """Points of F = 1 on the segments ``a``..``b`` (``fa >= 1 > fb``): the Illinois
-    variant of regula falsi, which keeps the root bracketed."""
+    variant of regula falsi, which keeps the root bracketed. Each segment is iterated
+    until its bracket is at most about 1e-12 mm long (or holds an exact root), at
+    most :data:`ROOT_STEPS` times; the segments still open are the only ones evaluated."""
     a, b = a.copy(), b.copy()
     fa, fb = fa - 1.0, fb - 1.0
     side = np.zeros(len(a), np.int8)
+    act = np.arange(len(a))
     for _ in range(ROOT_STEPS):
-        w = fa / (fa - fb)
-        w = np.where(np.isfinite(w), np.clip(w, 0.0, 1.0), 0.5)
-        x = a + w[:, None] * (b - a)
-        live = np.abs(b - a).max(axis=1) > 1e-12 * (1.0 + np.abs(a).max(axis=1))
-        if not live.any():
+        aa, bb = a[act], b[act]
+        act = act[np.abs(bb - aa).max(axis=1) > 1e-12 * (1.0 + np.abs(aa).max(axis=1))]
+        if not len(act):
             break
-        fx = np.zeros(len(a))
-        fx[live] = fld.values(x[live])[0] - 1.0
-        hit = live & (fx >= 0.0)
-        miss = live & (fx < 0.0)
-        a[hit], fa[hit] = x[hit], fx[hit]
-        b[miss], fb[miss] = x[miss], fx[miss]
-        fb[hit & (side == 1)] *= 0.5
-        fa[miss & (side == -1)] *= 0.5
-        side = np.where(hit, 1, np.where(miss, -1, side)).astype(np.int8)
+        fa_, fb_ = fa[act], fb[act]
+        w = fa_ / (fa_ - fb_)
+        w = np.where(np.isfinite(w), np.clip(w, 0.0, 1.0), 0.5)
+        x = a[act] + w[:, None] * (b[act] - a[act])
+        fx = fld.values(x)[0] - 1.0
+        hit, miss = act[fx >= 0.0], act[fx < 0.0]
+        a[hit], fa[hit] = x[fx >= 0.0], fx[fx >= 0.0]
+        b[miss], fb[miss] = x[fx < 0.0], fx[fx < 0.0]
+        fb[hit[side[hit] == 1]] *= 0.5
+        fa[miss[side[miss] == -1]] *= 0.5
+        side[hit], side[miss] = 1, -1
+        act = act[fx != 0.0]
     w = fa / (fa - fb)
     w = np.where(np.isfinite(w), np.clip(w, 0.0, 1.0), 0.5)
     return a + w[:, None] * (b - a)
 
 
-def _triangles(fld: MeshField, grid: _Grid, band: np.ndarray):
-    """Marching tetrahedra on the band's cubes: vertices (v, 3), outward faces (t, 3) and
-    the band cube of each face (t,)."""
+def _chunk_triangles(fld: MeshField, grid: _Grid, cubes: np.ndarray):
+    """Marching tetrahedra on some band cubes (module docstring, step 2).
+
+    Returns
+    -------
+    keys : (e,) int64
+        The crossed grid edges, by a key of the whole grid (:func:`_edge_keys`), sorted.
+    points : (e, 3) float64, mm
+        Their roots of F = 1.
+    faces : (t, 3) int64
+        Outward triangles, in positions of ``keys``.
+    owner : (t,) int64
+        The position in ``cubes`` of each face's cube.
+    """
     dims = grid.coarse * (1 << grid.levels) + 1
-    corners = (band[:, None, :] + _CORNERS[None]).reshape(-1, 3)
-    key = (corners[:, 2] * dims[1] + corners[:, 1]) * dims[0] + corners[:, 0]
-    ukey, inv = np.unique(key, return_inverse=True)
+    corners = cubes[:, None, :] + _CORNERS[None]                                   # (b, 8, 3)
+    ckey = (corners[..., 2] * dims[1] + corners[..., 1]) * dims[0] + corners[..., 0]
+    ukey, inv = np.unique(ckey.reshape(-1), return_inverse=True)
+    inv = inv.reshape(-1, 8)
     upts = np.stack([ukey % dims[0], (ukey // dims[0]) % dims[1], ukey // (dims[0] * dims[1])], -1)
     fval = fld.values(grid.points(upts))[0]
-    ids = inv.reshape(-1, 8)[:, _TETS].reshape(-1, 4)           # (6 b, 4) vertex numbers
-    cube = np.repeat(np.arange(len(band)), 6)
-    inside = fval[ids] >= 1.0
+    cube = np.repeat(np.arange(len(cubes)), 6)
+    corner = np.tile(_TETS, (len(cubes), 1))                                      # (6 b, 4) corner numbers
+    inside = fval[inv[cube[:, None], corner]] >= 1.0
     n_in = inside.sum(axis=1)
     keep = (n_in > 0) & (n_in < 4)
-    ids, inside, n_in, cube = ids[keep], inside[keep], n_in[keep], cube[keep]
+    corner, inside, n_in, cube = corner[keep], inside[keep], n_in[keep], cube[keep]
     # the tetrahedron's corners reordered: inside ones first (stable)
-    order = np.argsort(~inside, axis=1, kind="stable")
-    v = np.take_along_axis(ids, order, axis=1)
+    corner = np.take_along_axis(corner, np.argsort(~inside, axis=1, kind="stable"), axis=1)
     tris, owner = [], []
     for k, pairs in ((1, ((0, 1), (0, 2), (0, 3))), (3, ((0, 3), (1, 3), (2, 3)))):
-        sel = v[n_in == k]
+        sel = corner[n_in == k]
         tris.append(np.stack([np.stack([sel[:, i], sel[:, j]], -1) for i, j in pairs], 1))
         owner.append(cube[n_in == k])
-    sel = v[n_in == 2]                       # inside a, b; outside c, d: quad ac, ad, bd, bc
+    sel = corner[n_in == 2]                  # inside a, b; outside c, d: quad ac, ad, bd, bc
     quad = [np.stack([sel[:, i], sel[:, j]], -1) for i, j in ((0, 2), (0, 3), (1, 3), (1, 2))]
     tris.append(np.stack([quad[0], quad[1], quad[2]], 1))
     tris.append(np.stack([quad[0], quad[2], quad[3]], 1))
     owner += [cube[n_in == 2]] * 2
-    edges = np.concatenate(tris)             # (t, 3, 2): per corner, the (inside, outside) grid vertex
+    edges = np.concatenate(tris)             # (t, 3, 2): per corner, the (inside, outside) corner numbers
     owner = np.concatenate(owner)
     if not len(edges):
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), owner
-    ekey = edges[..., 0] * len(ukey) + edges[..., 1]
-    uedge, einv = np.unique(ekey.reshape(-1), return_inverse=True)
-    ein, eout = uedge // len(ukey), uedge % len(ukey)
-    pin, pout = grid.points(upts[ein]), grid.points(upts[eout])
-    verts = _roots(fld, pin, pout, fval[ein], fval[eout])
+        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3), np.int64), owner
+    c_in, c_out = edges[..., 0], edges[..., 1]
+    tcube = owner[:, None]
+    # two corners of one tetrahedron are on a monotone path: the lower is their AND, the step their XOR
+    gkey = ckey[tcube, c_in & c_out] * 7 + ((c_in ^ c_out) - 1)
+    keys, first, einv = np.unique(gkey.reshape(-1), return_index=True, return_inverse=True)
+    fc, fi, fo = tcube.repeat(3, 1).reshape(-1)[first], c_in.reshape(-1)[first], c_out.reshape(-1)[first]
+    v_in, v_out = inv[fc, fi], inv[fc, fo]
+    points = _roots(fld, grid.points(upts[v_in]), grid.points(upts[v_out]), fval[v_in], fval[v_out])
     faces = einv.reshape(-1, 3).astype(np.int64)
     # orient each triangle from inside to outside, judged on the edges' midpoints (never degenerate)
-    mid = 0.5 * (upts[edges[..., 0]] + upts[edges[..., 1]]).astype(np.float64)
+    p_in = cubes[tcube] + _CORNERS[c_in]
+    p_out = cubes[tcube] + _CORNERS[c_out]
+    mid = 0.5 * (p_in + p_out).astype(np.float64)
     normal = np.cross(mid[:, 1] - mid[:, 0], mid[:, 2] - mid[:, 0])
-    outward = (upts[edges[..., 1]] - upts[edges[..., 0]]).sum(axis=1)
-    flip = np.einsum("ij,ij->i", normal, outward) < 0
+    flip = np.einsum("ij,ij->i", normal, (p_out - p_in).sum(axis=1)) < 0
     faces[flip] = faces[flip][:, ::-1]
-    return verts, faces, owner
+    return keys, points, faces, owner
+
+
+def _triangles(fld: MeshField, grid: _Grid, band: np.ndarray):
+    """Marching tetrahedra on the band's cubes, :data:`CHUNK` cubes at a time: vertices
+    (v, 3), outward faces (t, 3) and the band cube of each face (t,).
+
+    A vertex is known by its grid edge's key in the whole grid, so the chunks' meshes
+    join where they meet (an edge on a chunk's border has the same root from either
+    side: the same end points and values); vertices come sorted by that key.
+    """
+    keys, points, faces, owner = [], [], [], []
+    n_keys = 0
+    for lo in range(0, len(band), CHUNK):
+        k, p, f, o = _chunk_triangles(fld, grid, band[lo:lo + CHUNK])
+        faces.append(f + n_keys)
+        n_keys += len(k)
+        keys.append(k)
+        points.append(p)
+        owner.append(o + lo)
+    if not n_keys:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64)
+    keys = np.concatenate(keys)
+    _, first, inv = np.unique(keys, return_index=True, return_inverse=True)
+    verts = np.concatenate(points)[first]
+    return verts, inv[np.concatenate(faces)].astype(np.int64), np.concatenate(owner)
 
 
 def _neighbourhood_max(band: np.ndarray, value: np.ndarray) -> np.ndarray:
@@ -271,35 +336,131 @@ def _neighbourhood_max(band: np.ndarray, value: np.ndarray) -> np.ndarray:
     order = np.argsort(key)
     skey = key[order]
     out = value.copy()
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            for dz in (-1, 0, 1):
-                k = key + (dz * span[1] + dy) * span[0] + dx
-                j = np.minimum(np.searchsorted(skey, k), len(skey) - 1)
-                hit = skey[j] == k
-                out[hit] = np.maximum(out[hit], value[order[j[hit]]])
+    for lo in range(0, len(band), CHUNK):
+        part = slice(lo, lo + CHUNK)
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                for dz in (-1, 0, 1):
+                    k = key[part] + (dz * span[1] + dy) * span[0] + dx
+                    j = np.minimum(np.searchsorted(skey, k), len(skey) - 1)
+                    hit = skey[j] == k
+                    o = out[part]
+                    o[hit] = np.maximum(o[hit], value[order[j[hit]]])
+                    out[part] = o
     return out
 
 
-def _certify(fld: MeshField, grid: _Grid, band: np.ndarray, verts: np.ndarray, faces: np.ndarray, owner: np.ndarray,
-             tol: float):
-    """The two sides of the certified bound (module docstring, step 3)."""
-    resid = np.abs(fld.values(verts)[0] - 1.0)
-    d_tri = piece_distances(fld, verts[faces], tol, resid[faces])
-    # surface to mesh: per band cube, from its 3 x 3 x 3 block's deviation bounds
+#: safety factor on the cube side a failed attempt predicts (:func:`_next_cell`)
+NEXT_CELL_MARGIN = 0.9
+
+
+#: levels of sub cubes a cube's curvature bounds are taken over again when it is not certified
+SPLIT_LEVELS = 2
+#: ... only while the cubes not certified are at most this share of the band (per level)
+SPLIT_SHARE = (0.2, 0.02)
+#: the vertices' residual ``|F(v) − 1|`` the cubes are first certified with, before the
+#: triangles exist (roots are iterated to about 1e-12 mm, so residuals are near 1e-12);
+#: cubes next to a larger residual are certified again once it is known
+RESIDUAL = 1e-9
+
+
+def _cube_bounds(fld: MeshField, grid: _Grid, band: np.ndarray):
+    """Per band cube: ``‖∇F(c)‖`` at its centre and the bound H over its ball, :data:`CHUNK` at a time."""
     r = 0.5 * math.sqrt(3.0) * grid.h
-    cc = grid.centres(band, 0)
-    _, gc = fld.values(cc, gradient=True)
-    _, _, Hr, _ = fld.balls_bounds(cc, np.full(len(cc), r))
-    worst = np.zeros(len(band))
-    if len(faces):
-        np.maximum.at(worst, owner, resid[faces].max(axis=1))
-    delta = _neighbourhood_max(band, (worst + 0.5 * Hr * r * r) * (1.0 + 1e-9))
-    d_cell = distances_to_surface(fld, cc, np.full(len(cc), r), delta, np.linalg.norm(gc, axis=1), min(tol, grid.h))
-    a = float(d_tri.max()) if len(d_tri) else 0.0
-    b = float(d_cell.max()) if len(d_cell) else 0.0
-    return a, b, {"uncertified_triangles": int(np.isinf(d_tri).sum()),
-                  "uncertified_cubes": int(np.isinf(d_cell).sum())}
+    g = np.zeros(len(band))
+    Hr = np.zeros(len(band))
+    for lo in range(0, len(band), CHUNK):
+        cc = grid.centres(band[lo:lo + CHUNK], 0)
+        g[lo:lo + CHUNK] = np.linalg.norm(fld.values(cc, gradient=True)[1], axis=1)
+        Hr[lo:lo + CHUNK] = fld.balls_bounds(cc, np.full(len(cc), r))[2]
+    return g, Hr
+
+
+def _sub_cubes(grid: _Grid, cubes: np.ndarray, level: int) -> np.ndarray:
+    """Centres (k, 8**level, 3) of the cubes of side ``h / 2**level`` making up each cube, mm
+    (their balls, of radius ``√3 h / 2**(level + 1)``, cover the cube)."""
+    q = 1 << level
+    grid_pts = np.stack(np.meshgrid(*[np.arange(q)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    offs = (grid_pts + 0.5) / q - 0.5
+    return grid.centres(cubes, 0)[:, None, :] + offs[None] * grid.h
+
+
+def _split_bounds(fld: MeshField, grid: _Grid, band: np.ndarray, which: np.ndarray, level: int) -> np.ndarray:
+    """H over the cubes ``which`` as the largest of their sub cubes' ball bounds (level 1:
+    halves, 2: quarters; tighter than the whole cube's ball, as the bounds loosen with the
+    ball's radius)."""
+    idx = np.flatnonzero(which)
+    out = np.zeros(len(idx))
+    q = 8 ** level
+    rho = math.sqrt(3.0) * grid.h / (2 << level)
+    step = max(1, CHUNK // q)
+    for lo in range(0, len(idx), step):
+        sub = _sub_cubes(grid, band[idx[lo:lo + step]], level).reshape(-1, 3)
+        out[lo:lo + step] = fld.balls_bounds(sub, np.full(len(sub), rho))[2].reshape(-1, q).max(axis=1)
+    return out
+
+
+def _cube_distances(fld: MeshField, grid: _Grid, band: np.ndarray, g: np.ndarray, Hr: np.ndarray, worst: np.ndarray,
+                    tol: float, which: np.ndarray | None = None, split: int = 0) -> np.ndarray:
+    """Surface to mesh (module docstring, step 3): per band cube (or the cubes ``which``), the
+    certified distance from its surface points to the mesh, from the deviation bounds of its
+    3 x 3 x 3 block, with ``worst`` each cube's largest vertex residual (inf: not certified);
+    ``split`` > 0: the slope's curvature bound over the balls of the sub cubes of that level
+    (:func:`_sub_cubes`)."""
+    r = 0.5 * math.sqrt(3.0) * grid.h
+    delta = _neighbourhood_max(band, (np.maximum(worst, RESIDUAL) + 0.5 * Hr * r * r) * (1.0 + 1e-9))
+    idx = np.arange(len(band)) if which is None else np.flatnonzero(which)
+    out = np.zeros(len(idx))
+    step = max(1, CHUNK // 8 ** split)
+    for lo in range(0, len(idx), step):
+        k = idx[lo:lo + step]
+        cover = (_sub_cubes(grid, band[k], split), math.sqrt(3.0) * grid.h / (2 << split)) if split else None
+        out[lo:lo + step] = distances_to_surface(fld, grid.centres(band[k], 0), np.full(len(k), r), delta[k], g[k],
+                                                 min(tol, grid.h), cover)
+    return out
+
+
+def _surface_to_mesh(fld: MeshField, grid: _Grid, band: np.ndarray, g: np.ndarray, Hr: np.ndarray, worst: np.ndarray,
+                     tol: float) -> np.ndarray:
+    """:func:`_cube_distances` of every band cube; where a cube is not certified within
+    ``tol``, its block's curvature bounds are taken again over half cubes, then quarter
+    cubes (``Hr`` is updated in place), and the cube certified again with them, as long as
+    such cubes are at most :data:`SPLIT_SHARE` of the band (else the attempt fails at once)."""
+    d = _cube_distances(fld, grid, band, g, Hr, worst, tol)
+    for level in range(1, SPLIT_LEVELS + 1):
+        bad = ~(d <= tol)
+        if not bad.any() or bad.sum() > SPLIT_SHARE[level - 1] * len(band):
+            break
+        near = _neighbourhood_max(band, bad.astype(np.float64)) > 0
+        Hr[near] = np.minimum(Hr[near], _split_bounds(fld, grid, band, near, level))
+        d[bad] = _cube_distances(fld, grid, band, g, Hr, worst, tol, bad, split=level)
+    return d
+
+
+def _triangle_distances(fld: MeshField, verts: np.ndarray, faces: np.ndarray, tol: float):
+    """Mesh to surface (module docstring, step 3): per triangle, the certified distance from
+    its points to the surface (inf: not certified), and each vertex's residual ``|F(v) − 1|``."""
+    resid = np.concatenate([np.abs(fld.values(verts[lo:lo + CHUNK])[0] - 1.0) for lo in range(0, len(verts), CHUNK)]
+                           or [np.zeros(0)])
+    d_tri = np.concatenate([piece_distances(fld, verts[f], tol, resid[f])
+                            for f in _chunks([faces], CHUNK)] or [np.zeros(0)])
+    return d_tri, resid
+
+
+def _next_cell(h: float, g: np.ndarray, H: np.ndarray) -> float:
+    """The cube side at which cubes of slope ``g`` and curvature bound ``H`` (over their
+    ball) could be certified, or inf when none is given.
+
+    A surface point is certified when some reach s has ``δ / (g − H (r + s)) <= s``
+    (step 3), with ``δ`` about ``H r²/2``; the best s gives ``(g − H r)² >= 2 H² r²``,
+    that is ``r <= g / ((1 + √2) H)`` (``H`` as measured at the larger cube, an
+    optimistic guess, hence :data:`NEXT_CELL_MARGIN`).
+    """
+    ok = H > 0
+    if not ok.any():
+        return math.inf
+    r = float((g[ok] / ((1.0 + math.sqrt(2.0)) * H[ok])).min())
+    return NEXT_CELL_MARGIN * 2.0 * r / math.sqrt(3.0) if r > 0 else math.inf
 
 
 def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attempts: int = ATTEMPTS,
@@ -361,17 +522,52 @@ def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attem
     out = None
     for attempt in range(1, attempts + 1):
         grid = _grid(skel, h)
-        band, counts = _band(fld, grid)
-        verts, faces, owner = _triangles(fld, grid, band)
-        a, b, extra = _certify(fld, grid, band, verts, faces, owner, tol)
-        bound = max(a, b)
+        try:
+            band, counts = _band(fld, grid)
+        except OptionError as err:
+            if out is None:
+                raise OptionError(f"{err}; ask for a larger --tol") from None
+            raise OptionError(f"{err}: at cubes of {out.cell:.4g} mm, {out.stats['uncertified_cubes']:,} of the "
+                              f"{out.stats['band_cubes']:,} band cubes could not be certified (the curvature bounds "
+                              f"are large where struts meet), and a larger --tol does not make them larger "
+                              f"(docs/mesh.md, 'One cube size everywhere')") from None
+        # the cubes first: an attempt they cannot certify is not triangulated (but the last)
+        g, Hr = _cube_bounds(fld, grid, band)
+        d_cell = _surface_to_mesh(fld, grid, band, g, Hr, np.zeros(len(band)), tol)
+        b = float(d_cell.max()) if len(d_cell) else 0.0
         stats = {"attempts": attempt, "band_cubes": int(len(band)), "settled_inside": counts["inside"],
-                 "settled_outside": counts["outside"], "field_points": fld.points, "field_balls": fld.balls,
-                 "triangles": int(len(faces)), **extra}
+                 "settled_outside": counts["outside"]}
+        if b <= tol or attempt == attempts:
+            verts, faces, owner = _triangles(fld, grid, band)
+            d_tri, resid = _triangle_distances(fld, verts, faces, tol)
+            worst = np.zeros(len(band))
+            if len(faces):
+                np.maximum.at(worst, owner, resid[faces].max(axis=1))
+            if (worst > RESIDUAL).any():      # certified again with the residuals found
+                redo = _neighbourhood_max(band, worst) > RESIDUAL
+                d_redo = _cube_distances(fld, grid, band, g, Hr, worst, tol, redo)
+                again = ~(d_redo <= tol)
+                if again.any():
+                    which = np.zeros(len(band), bool)
+                    which[np.flatnonzero(redo)[again]] = True
+                    d_redo[again] = _cube_distances(fld, grid, band, g, Hr, worst, tol, which, split=SPLIT_LEVELS)
+                d_cell[redo] = d_redo
+                b = float(d_cell.max())
+            a = float(d_tri.max()) if len(d_tri) else 0.0
+            stats.update(triangles=int(len(faces)), uncertified_triangles=int(np.isinf(d_tri).sum()))
+        else:
+            verts, faces, a = np.zeros((0, 3)), np.zeros((0, 3), np.int64), math.nan
+        bad = ~np.isfinite(d_cell)
+        stats.update(uncertified_cubes=int(bad.sum()), field_points=fld.points, field_balls=fld.balls)
+        bound = max(a, b) if len(faces) else b
         out = SurfaceMesh(verts, faces, tol, bound, a, b, h, stats)
         if bound <= tol:
             break
-        h *= min(0.85, max(0.5, 0.95 * math.sqrt(tol / bound))) if math.isfinite(bound) else 0.7
+        if math.isfinite(bound):
+            h *= min(0.85, max(0.5, 0.95 * math.sqrt(tol / bound)))
+        else:       # some cubes or triangles not certified at all: as small as the cubes ask, at least 0.5 h
+            wish = _next_cell(h, g[bad], Hr[bad])
+            h *= min(0.85, max(0.5, wish / h)) if math.isfinite(wish) else 0.7
     if compact and out.certified:
         out = simplified(fld, out, tol) or out
     out.stats["seconds"] = time.perf_counter() - start

@@ -404,9 +404,18 @@ def _end_distances(wx, wy, wz, ux, uy, uz, t):
 def _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
     """Upper bound over the disc of ``|∇ψ(p − a)| + |∇ψ(p − b)|``, ψ the integrand
     at the segment's ends ``a`` and ``b`` (radii τ0 and τ1)."""
+    return _end_slope_sums(seg, i, cx, cy, cz, r, n, sigma, norm, k1)[0]
+
+
+@unrefcounted_kernel
+def _end_slope_sums(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
+    """Upper bounds over the disc (or ball) of ``|k′(s_a)|/τ0² + |k′(s_b)|/τ1²`` (that is
+    ``|∇ψ(p − a)| + |∇ψ(p − b)|``) and of ``|k′(s_a)|/τ0 + |k′(s_b)|/τ1``, s_a and s_b the
+    scaled distances to the segment's ends."""
     L = seg[i, LEN]
     cn = norm * n / (sigma * sigma)
     out = 0.0
+    once = 0.0
     for end in range(2):
         t = 0.0 if end == 0 else L
         tau = seg[i, TAU0] + seg[i, DELTA] * t
@@ -417,8 +426,10 @@ def _end_slopes(seg, i, cx, cy, cz, r, n, sigma, norm, k1):
         s_lo = max(d * (1.0 - SLACK) - r, 0.0) / (tau * (1.0 + SLACK))
         if s_lo < sigma:
             w1 = _ipow(1.0 - s_lo * s_lo / (sigma * sigma), n // 2 - 1)
-            out += _slope_sup(s_lo, w1, n, sigma, cn, k1) / (tau * tau)
-    return out
+            k = _slope_sup(s_lo, w1, n, sigma, cn, k1)
+            out += k / (tau * tau)
+            once += k / tau
+    return out, once
 
 
 #: largest ``2 a b + a²`` over ``a² + b² = 1`` (the eigenvalue (1 + √5)/2 of [[1, 1], [1, 0]])
