@@ -152,6 +152,22 @@ def _radial(u, kap, m):
 
 
 @inline_kernel
+def _radial_range(u_lo, u_hi, beyond, kap_lo, kap_hi, ustar, m):
+    """``(least, top)`` of :func:`_radial` over ``u`` in ``[u_lo, u_hi]`` and ``κ`` in
+    ``[κ_lo, κ_hi]``: the least at an end of the u range with κ_lo, the top at ``u*``
+    (clamped) with κ_hi, or on the curve ``κ <= 2(m − 1) u − 1`` (ρ_p <= ‖p − q‖), which
+    peaks at ``u = 3/(2m − 1)``, whichever is smaller; both take in 0 when the range goes
+    ``beyond`` the support."""
+    least = min(_radial(u_lo, kap_lo, m), _radial(u_hi, kap_lo, m))
+    uc = min(max(3.0 / (2.0 * m - 1.0), u_lo), u_hi)
+    top = min(_radial(min(max(ustar, u_lo), u_hi), kap_hi, m), _radial(uc, 2.0 * (m - 1.0) * uc - 1.0, m))
+    if beyond:
+        least = min(least, 0.0)
+        top = max(top, 0.0)
+    return least, top
+
+
+@inline_kernel
 def _second_sup(ulo, uhi, m):
     """``sup 2(m − 1) u (1 − u)^(m−2)`` over ``u`` in ``[ulo, uhi]`` (within [0, 1];
     it rises up to ``u = 1/(m − 1)`` and then falls; for m = 2 it is 2u)."""
@@ -358,13 +374,7 @@ def _piece_terms(rows, terms, geo, pieces, n, sigma, norm, k1, k2):
             # an untapered segment's radial integrand (τ fixed), from below (at an
             # end of [u_lo, u_hi]) and above (at u* clamped); ρ_p <= ‖p − q‖ puts
             # ρ_p²/(στ)² <= u, so κ <= 2(m − 1) u − 1 too, which peaks at 3/(2m − 1)
-            least = min(_radial(u_lo, kap_lo, m), _radial(u_hi, kap_lo, m))
-            uc = min(max(3.0 / (2.0 * m - 1.0), u_lo), u_hi)
-            top = min(_radial(min(max(ustar, u_lo), u_hi), kap_hi, m), _radial(uc, 2.0 * (m - 1.0) * uc - 1.0, m))
-            # 0 beyond the support
-            if s_hi >= sigma:
-                least = min(least, 0.0)
-                top = max(top, 0.0)
+            least, top = _radial_range(u_lo, u_hi, s_hi >= sigma, kap_lo, kap_hi, ustar, m)
             TRU[j] = ln * cn * top * it3
             TRL[j] = ln * cn * least * it3
 

@@ -49,7 +49,7 @@ from numba import prange
 
 from slicer._jit import inline_kernel, parallel_kernel, unrefcounted_kernel
 from slicer._kernels.contours.cellbounds import (GOLDEN, SLACK, _curvature_sup, _end_slope_sums, _end_slopes, _ipow, _line_bounds,
-                                                _radial, _radial_constants, _reach_interval, _second_sup,
+                                                _radial_constants, _radial_range, _reach_interval, _second_sup,
                                                 _slope_sup, kernel_curvature_max, piece_count)
 from slicer._kernels.field.segment import AX, AY, AZ, DELTA, LEN, TAU0, UX, UY, UZ
 from slicer._kernels.rays.support import kprime_max
@@ -97,15 +97,9 @@ def _piece_terms(ln, dist, dmax, pmax, tmin, tmax, r, m, sigma, norm, k1, k2, ra
     bl = ln * cn * _ipow(1.0 - u_hi, m - 1) / (tmax * tmax * tmax)
     a = ln * cn * _second_sup(u_lo, u_hi, m) * it3
     pe = min(1.0, (pmax * (1.0 + SLACK) + r) / dlo) if dlo > 0.0 else 1.0
-    # the radial integrand, from below (at an end of [u_lo, u_hi]) and above (at u*
-    # clamped, or on the curve κ <= 2(m − 1) u − 1), as for a disc (docs/math.md §10)
+    # the radial integrand, as for a disc (docs/math.md §10)
     kap_lo, kap_hi, ustar = radial
-    least = min(_radial(u_lo, kap_lo, m), _radial(u_hi, kap_lo, m))
-    uc = min(max(3.0 / (2.0 * m - 1.0), u_lo), u_hi)
-    top = min(_radial(min(max(ustar, u_lo), u_hi), kap_hi, m), _radial(uc, 2.0 * (m - 1.0) * uc - 1.0, m))
-    if s_hi >= sigma:
-        least = min(least, 0.0)
-        top = max(top, 0.0)
+    least, top = _radial_range(u_lo, u_hi, s_hi >= sigma, kap_lo, kap_hi, ustar, m)
     # times 1/τ³, τ anywhere in [tmin, tmax]: the side that widens each bound
     it3x = 1.0 / (tmax * tmax * tmax)
     ru = ln * cn * top * (it3 if top >= 0.0 else it3x)
