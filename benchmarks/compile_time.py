@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/compile_time.py [--baseline TREE] [--repeat N]
-                                      [--jobs contours trace render mesh] [--kernels N] [--json out.json]
+                                      [--jobs contours trace render mesh mesh_part] [--kernels N] [--json out.json]
 
 Jobs:
 
@@ -22,6 +22,10 @@ Jobs:
     The first ``slicer.meshing.mesh_scene`` of two struts at tol 0.1 mm (the
     ball bounds, the field and the compact step's distance kernels): what the
     first ``skelslice mesh`` of a fresh install waits for.
+``mesh_part``
+    The first ``slicer.meshing.mesh_part`` of the same struts clipped by a
+    box (the mesh job's kernels and the winding numbers): the first
+    ``skelslice mesh`` of a part (a tree without ``mesh_part`` cannot run it).
 
 Each run is a fresh subprocess with ``PYTHONPATH`` set to the tree under test
 and an empty Numba cache folder of its own (``NUMBA_CACHE_DIR``), so every
@@ -52,7 +56,7 @@ sys.path.insert(0, str(HERE))
 
 from speed import byte_compile, trees_to_run  # noqa: E402  (as the speed benchmark does)
 
-JOBS = ("contours", "trace", "render", "mesh")
+JOBS = ("contours", "trace", "render", "mesh", "mesh_part")
 
 
 # ---------------------------------------------------------------- worker side
@@ -64,11 +68,19 @@ def _job(name: str):
         from slicer.contours import plane_contours
         skel = load_sample("octet_2x2x2")
         return lambda: plane_contours(skel, 5.0, 1e-3)
-    if name == "mesh":
+    if name in ("mesh", "mesh_part"):
         from slicer import Skeleton
         from slicer.meshing import mesh_scene
         strut = Skeleton([[0, 0, 0], [0, 0, 2], [1, 0, 3]], [[0, 1], [1, 2]], [[0.5, 0.5], [0.5, 0.3]])
-        return lambda: mesh_scene(strut, tol=0.1)
+        if name == "mesh":
+            return lambda: mesh_scene(strut, tol=0.1)
+        import trimesh
+        from slicer.meshing import mesh_part
+        from slicer.parts.meshes import make_mesh
+        from slicer.parts.part import Part, PartMesh
+        box = trimesh.creation.box((2, 2, 2))
+        part = Part(strut, (PartMesh(make_mesh(box.vertices, box.faces, "box"), "clip-inside"),))
+        return lambda: mesh_part(part, tol=0.1)
     from slicer import render, slice_skeleton      # the names both layouts have
     skel = load_sample("jellyfish")
     if name == "render":

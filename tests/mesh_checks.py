@@ -90,3 +90,85 @@ def _distances(p, tri):
         t = np.clip(np.einsum("ij,ij->i", p - u, e) / np.where(ee > 0, ee, 1.0), 0.0, 1.0)
         d = np.minimum(d, np.linalg.norm(p - (u + t[:, None] * e), axis=1))
     return d
+
+
+# --- parts: the solid ((S ∩ CI) − CO) ∪ M with convex meshes ---
+
+def convex_inside(vertices, faces, points):
+    """Whether each point (q, 3) is in the convex mesh (closed, outward): on the inner side of
+    every face's plane (its surface counts as inside)."""
+    tri = vertices[faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    offset = np.einsum("tj,tj->t", n, tri[:, 0]) + 1e-12 * np.linalg.norm(n, axis=1)
+    out = np.ones(len(points), bool)
+    for t in range(len(faces)):
+        out &= points @ n[t] <= offset[t]
+    return out
+
+
+def part_inside(skel, roles, points):
+    """Whether each point is in ``((S ∩ CI) − CO) ∪ M``: ``roles`` maps a role to a list of convex
+    (vertices, faces); S is ``F >= 1``."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    s = evaluate(skel, points)[0] >= 1.0 if skel is not None else np.zeros(len(points), bool)
+
+    def any_of(role, empty):
+        ms = roles.get(role, [])
+        if not ms:
+            return np.full(len(points), empty)
+        return np.any([convex_inside(v, f, points) for v, f in ms], axis=0)
+
+    return (s & any_of("clip-inside", True) & ~any_of("clip-outside", False)) | any_of("solid", False)
+
+
+def part_mesh_points_off_surface(skel, roles, vertices, faces, tol, k_per_face=2, seed=0, steps=41):
+    """Points sampled on the mesh with no change of :func:`part_inside` on any of 54 segments
+    ``p ± tol u`` (u: the face's normal, 13 axes of a cube's neighbours, 40 random), sampled
+    ``steps`` times; empty:
+    all pass (a change found is a true point of the solid's surface within tol)."""
+    rng = np.random.default_rng(seed)
+    tri = vertices[faces]
+    w = rng.dirichlet([1.0, 1.0, 1.0], size=(len(faces), k_per_face))
+    p = np.concatenate([np.einsum("tkj,tjd->tkd", w, tri), tri.mean(axis=1)[:, None]], axis=1)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    n = np.repeat(n, p.shape[1], axis=0)
+    p = p.reshape(-1, 3)
+    fixed = np.concatenate([[[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (0, 1) if z or y > 0 or
+                             (y == 0 and x > 0)], np.random.default_rng(seed + 1).normal(size=(40, 3))])
+    fixed /= np.linalg.norm(fixed, axis=1)[:, None]
+    t = np.linspace(-tol, tol, steps)
+    ok = np.zeros(len(p), bool)
+    for u in [n] + [np.broadcast_to(d, p.shape) for d in fixed]:
+        todo = np.flatnonzero(~ok)
+        if not len(todo):
+            break
+        pts = p[todo, None, :] + t[None, :, None] * u[todo, None, :]
+        inside = part_inside(skel, roles, pts.reshape(-1, 3)).reshape(len(todo), steps)
+        ok[todo] = inside.any(axis=1) & ~inside.all(axis=1)
+    return p[~ok]
+
+
+def part_surface_points_on_lines(skel, roles, lo, hi, n_lines=40, step=0.004, seed=1):
+    """Points of the part's surface (each to 1e-12 mm) on random lines through random points of
+    the box ``lo``..``hi``: changes of :func:`part_inside` found by dense sampling and bisection."""
+    rng = np.random.default_rng(seed)
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    span = float(np.linalg.norm(hi - lo))
+    out = []
+    for _ in range(n_lines):
+        a = lo + rng.uniform(size=3) * (hi - lo)
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        t = np.arange(-span, span, step)
+        ins = part_inside(skel, roles, a + t[:, None] * d)
+        for i in np.flatnonzero(ins[:-1] != ins[1:]):
+            t0, t1, s0 = t[i], t[i + 1], ins[i]
+            for _ in range(50):
+                tm = 0.5 * (t0 + t1)
+                if part_inside(skel, roles, (a + tm * d)[None])[0] == s0:
+                    t0 = tm
+                else:
+                    t1 = tm
+            out.append(a + 0.5 * (t0 + t1) * d)
+    return np.array(out).reshape(-1, 3)

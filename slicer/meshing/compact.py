@@ -118,40 +118,50 @@ def triangle_bounds(fld, vertices: np.ndarray, faces: np.ndarray, tol: float, li
     return out, n_pieces
 
 
-def compact(fld, uniform, tol: float):
-    """The uniform certified mesh ``uniform`` (a :class:`slicer.meshing.certificate.SurfaceMesh`)
-    simplified and certified again within ``tol``, or None when no simplification certifies
-    or saves triangles."""
-    # the certificate reaches no farther than the thinnest strut (certificate.distances_to_surface)
-    reach = min(tol, float(fld.skel.radii.min()))
-    budget = reach - uniform.surface_to_mesh
+def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface):
+    """The loop of :func:`compact` (and of a part's, :mod:`slicer.meshing.composite`): ``uniform`` simplified to
+    fractions of ``budget``; surface to mesh by the distances from ``uniform`` to the result
+    (pieces split while above ``reach − uniform.surface_to_mesh``, nothing farther than ``reach``
+    found); mesh to surface by ``mesh_to_surface(v1, f1, row)`` (a bound, mm; ``row`` takes its
+    counts)."""
     if not budget > 0.0 or not len(uniform.faces):
         return None
     tried = []
     for frac in FRACTIONS:
         v1, f1 = simplify(uniform.vertices, uniform.faces, frac * budget)
-        if len(f1) > GAIN * len(uniform.faces) or not len(f1):
-            tried.append({"eps": frac * budget, "triangles": int(len(f1)), "kept": False})
-            break
-        d01 = float(mesh_to_mesh(uniform.vertices, uniform.faces, v1, f1, budget, reach).max())
-        b1 = uniform.surface_to_mesh + d01
-        row = {"eps": frac * budget, "triangles": int(len(f1)), "uniform_to_compact": d01}
+        row = {"eps": frac * budget, "triangles": int(len(f1)), "kept": False}
         tried.append(row)
+        if len(f1) > GAIN * len(uniform.faces) or not len(f1):
+            break
+        d01 = float(mesh_to_mesh(uniform.vertices, uniform.faces, v1, f1, reach - uniform.surface_to_mesh,
+                                 reach).max())
+        b1 = uniform.surface_to_mesh + d01
+        row["uniform_to_compact"] = d01
         if not b1 <= tol:
-            row["kept"] = False
             continue
-        d, n_pieces = triangle_bounds(fld, v1, f1, tol, int(PIECES * len(uniform.faces)))
-        a1 = float(d.max())
-        row.update(mesh_to_surface=a1, certified_pieces=int(n_pieces))
-        if not a1 <= tol:
-            row["kept"] = False
-            continue
-        row["kept"] = True
-        stats = dict(uniform.stats, uniform_triangles=int(len(uniform.faces)), uniform_bound=uniform.bound,
-                     simplify=tried, triangles=int(len(f1)))
-        return SurfaceMesh(v1, f1, tol, max(a1, b1), a1, b1, uniform.cell, stats)
+        a1 = mesh_to_surface(v1, f1, row)
+        row.update(mesh_to_surface=a1, kept=bool(a1 <= tol))
+        if row["kept"]:
+            stats = dict(uniform.stats, uniform_triangles=int(len(uniform.faces)), uniform_bound=uniform.bound,
+                         simplify=tried, triangles=int(len(f1)))
+            return SurfaceMesh(v1, f1, tol, max(a1, b1), a1, b1, uniform.cell, stats)
     uniform.stats["simplify"] = tried
     return None
 
 
-__all__ = ["compact", "simplify", "mesh_to_mesh", "triangle_bounds"]
+def compact(fld, uniform, tol: float):
+    """The uniform certified mesh ``uniform`` (a :class:`slicer.meshing.certificate.SurfaceMesh`)
+    simplified and certified again within ``tol``, or None when no simplification certifies
+    or saves triangles. Mesh to surface: each triangle certified on the field (:func:`triangle_bounds`)."""
+    # the certificate reaches no farther than the thinnest strut (certificate.distances_to_surface)
+    reach = min(tol, float(fld.skel.radii.min()))
+
+    def on_field(v1, f1, row):
+        d, n_pieces = triangle_bounds(fld, v1, f1, tol, int(PIECES * len(uniform.faces)))
+        row["certified_pieces"] = int(n_pieces)
+        return float(d.max())
+
+    return simplified(uniform, tol, reach - uniform.surface_to_mesh, reach, on_field)
+
+
+__all__ = ["compact", "simplified", "simplify", "mesh_to_mesh", "triangle_bounds"]

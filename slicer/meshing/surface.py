@@ -52,6 +52,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from functools import cached_property
 from itertools import permutations
 
 import numpy as np
@@ -101,15 +102,19 @@ def lattice_of(scene) -> Skeleton:
     Raises
     ------
     SceneError
-        A part with solid or clipping meshes, no lattice, or a degree-2 kernel.
+        A part with solid or clipping meshes (:func:`slicer.meshing.mesh_part` meshes those),
+        no lattice, groups of struts (supports), or a degree-2 kernel.
     """
     if isinstance(scene, Part):
         if scene.meshes:
             raise SceneError(f"the scene has {len(scene.meshes)} solid or clipping meshes ({scene.describe()}); "
-                             f"mesh output covers lattices only so far (docs/mesh.md)", scene.source)
+                             f"mesh_scene meshes lattices alone: use slicer.meshing.mesh_part", scene.source)
         scene = scene.skeleton
     if not isinstance(scene, Skeleton) or scene.n_segments == 0:
         raise SceneError("nothing to mesh: the scene has no lattice")
+    if getattr(scene, "groups", ()):
+        raise SceneError(f"the scene's struts fall in {len(scene.groups)} groups that unite (supports and a pad); "
+                         f"meshing a union of groups is not supported yet (docs/mesh.md, 'Limits')", scene.source)
     if scene.degree < 4:
         raise SceneError(f"kernel degree {scene.degree}: the field's curvature is unbounded at the supports' "
                          f"edge, so no mesh can be certified; use degree 4 or more", scene.source)
@@ -142,7 +147,7 @@ def _grid(skel: Skeleton, h: float) -> _Grid:
     return _Grid(centre - 0.5 * coarse * side, h, levels, coarse)
 
 
-def _settle(fld: MeshField, c: np.ndarray, r: float):
+def settle(fld: MeshField, c: np.ndarray, r: float):
     """Cube verdicts from their balls ``B(c, r)``: ``(inside, outside)`` boolean arrays."""
     f, g = fld.values(c, gradient=True)
     U, L, H, _ = fld.balls_bounds(c, np.full(len(c), r))
@@ -171,7 +176,7 @@ def _band(fld: MeshField, grid: _Grid):
         side = grid.h * (1 << level)
         kept, n = [], 0
         for part in _chunks(cubes, CHUNK if level == 0 else CHUNK // 8):
-            ins, out = _settle(fld, grid.centres(part, level), 0.5 * math.sqrt(3.0) * side)
+            ins, out = settle(fld, grid.centres(part, level), 0.5 * math.sqrt(3.0) * side)
             counts["inside"] += int(ins.sum())
             counts["outside"] += int(out.sum())
             part = part[~(ins | out)]
@@ -463,6 +468,123 @@ def _next_cell(h: float, g: np.ndarray, H: np.ndarray) -> float:
     return NEXT_CELL_MARGIN * 2.0 * r / math.sqrt(3.0) if r > 0 else math.inf
 
 
+@dataclass
+class Band:
+    """The band of a uniform mesh: the cubes of side ``h`` not settled inside or outside.
+
+    Off these cubes the mesh's solid and the surface's are the same (docs/mesh.md, "Parts").
+
+    Attributes
+    ----------
+    grid : the cubes' grid (origin, side ``h``)
+    cubes : (b, 3) int64
+        Indices of the band's cubes, sorted by (z, y, x).
+    """
+
+    grid: _Grid
+    cubes: np.ndarray
+
+    @property
+    def h(self) -> float:
+        """The cubes' side, mm."""
+        return self.grid.h
+
+    def centres(self) -> np.ndarray:
+        """(b, 3) float64, mm."""
+        return self.grid.centres(self.cubes, 0)
+
+    def _keys(self, idx: np.ndarray, level: int) -> np.ndarray:
+        """A key per cube index triple (..., 3) of cubes ``2**level`` times the side (any
+        integers: those off the grid fall on a ring around it that holds no band cube)."""
+        span = ((self.grid.coarse << self.grid.levels) >> level) + 3
+        idx = np.clip(idx + 1, 0, span - 1)
+        return (idx[..., 2] * span[1] + idx[..., 1]) * span[0] + idx[..., 0]
+
+    @cached_property
+    def _keys_by_level(self) -> dict:
+        return {}
+
+    def contains(self, idx: np.ndarray, level: int = 0) -> np.ndarray:
+        """Whether each cube index triple (..., 3) is a band cube, or (``level`` > 0) a cube
+        ``2**level`` times the side, ``idx >> level``, holding one."""
+        own = self._keys_by_level.get(level)
+        if own is None:
+            own = self._keys_by_level[level] = np.unique(self._keys(self.cubes >> level, level))
+        k = self._keys(idx, level)
+        if not len(own):
+            return np.zeros(k.shape, bool)
+        j = np.minimum(np.searchsorted(own, k), len(own) - 1)
+        return own[j] == k
+
+
+def uniform_mesh(fld: MeshField, tol: float, cell: float | None, attempts: int):
+    """The certified uniform mesh of marching tetrahedra (steps 1-3), with smaller cubes at
+    each attempt until the bound is at most ``tol``, and its band.
+
+    Returns
+    -------
+    SurfaceMesh
+        The last attempt's (certified or not).
+    Band
+        Its cubes not settled.
+    """
+    skel = fld.skel
+    r_min = float(skel.radii.min())
+    # cubes wider than half the thinnest strut see no more of it: a coarse tolerance starts there
+    h = positive_number(cell, "cell") if cell is not None else min(0.4 * math.sqrt(tol * r_min), 0.5 * r_min)
+    _check_band_estimate(skel, h)
+    out = None
+    for attempt in range(1, attempts + 1):
+        grid = _grid(skel, h)
+        try:
+            band, counts = _band(fld, grid)
+        except OptionError as err:
+            if out is None:
+                raise OptionError(f"{err}; ask for a larger --tol") from None
+            raise OptionError(f"{err}: at cubes of {out.cell:.4g} mm, {out.stats['uncertified_cubes']:,} of the "
+                              f"{out.stats['band_cubes']:,} band cubes could not be certified (the curvature bounds "
+                              f"are large where struts meet), and a larger --tol does not make them larger "
+                              f"(docs/mesh.md, 'One cube size everywhere')") from None
+        # the cubes first: an attempt they cannot certify is not triangulated (but the last)
+        g, Hr = _cube_bounds(fld, grid, band)
+        d_cell = _surface_to_mesh(fld, grid, band, g, Hr, np.zeros(len(band)), tol)
+        b = float(d_cell.max()) if len(d_cell) else 0.0
+        stats = {"attempts": attempt, "band_cubes": int(len(band)), "settled_inside": counts["inside"],
+                 "settled_outside": counts["outside"]}
+        if b <= tol or attempt == attempts:
+            verts, faces, owner = _triangles(fld, grid, band)
+            d_tri, resid = _triangle_distances(fld, verts, faces, tol)
+            worst = np.zeros(len(band))
+            if len(faces):
+                np.maximum.at(worst, owner, resid[faces].max(axis=1))
+            if (worst > RESIDUAL).any():      # certified again with the residuals found
+                redo = _neighbourhood_max(band, worst) > RESIDUAL
+                d_redo = _cube_distances(fld, grid, band, g, Hr, worst, tol, redo)
+                again = ~(d_redo <= tol)
+                if again.any():
+                    which = np.zeros(len(band), bool)
+                    which[np.flatnonzero(redo)[again]] = True
+                    d_redo[again] = _cube_distances(fld, grid, band, g, Hr, worst, tol, which, split=SPLIT_LEVELS)
+                d_cell[redo] = d_redo
+                b = float(d_cell.max())
+            a = float(d_tri.max()) if len(d_tri) else 0.0
+            stats.update(triangles=int(len(faces)), uncertified_triangles=int(np.isinf(d_tri).sum()))
+        else:
+            verts, faces, a = np.zeros((0, 3)), np.zeros((0, 3), np.int64), math.nan
+        bad = ~np.isfinite(d_cell)
+        stats.update(uncertified_cubes=int(bad.sum()), field_points=fld.points, field_balls=fld.balls)
+        bound = max(a, b) if len(faces) else b
+        out = SurfaceMesh(verts, faces, tol, bound, a, b, h, stats)
+        if bound <= tol:
+            break
+        if math.isfinite(bound):
+            h *= min(0.85, max(0.5, 0.95 * math.sqrt(tol / bound)))
+        else:       # some cubes or triangles not certified at all: as small as the cubes ask, at least 0.5 h
+            wish = _next_cell(h, g[bad], Hr[bad])
+            h *= min(0.85, max(0.5, wish / h)) if math.isfinite(wish) else 0.7
+    return out, Band(grid, band)
+
+
 def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attempts: int = ATTEMPTS,
                compact: bool = True) -> SurfaceMesh:
     """Mesh the solid ``F >= 1`` of a lattice, with a certified Hausdorff bound.
@@ -513,65 +635,13 @@ def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attem
     tol = positive_number(tol, "tol")
     attempts = integer(attempts, "attempts", lo=1)
     skel = lattice_of(scene)
-    r_min = float(skel.radii.min())
-    # cubes wider than half the thinnest strut see no more of it: a coarse tolerance starts there
-    h = positive_number(cell, "cell") if cell is not None else min(0.4 * math.sqrt(tol * r_min), 0.5 * r_min)
-    _check_band_estimate(skel, h)
-    fld = MeshField(skel)
     start = time.perf_counter()
-    out = None
-    for attempt in range(1, attempts + 1):
-        grid = _grid(skel, h)
-        try:
-            band, counts = _band(fld, grid)
-        except OptionError as err:
-            if out is None:
-                raise OptionError(f"{err}; ask for a larger --tol") from None
-            raise OptionError(f"{err}: at cubes of {out.cell:.4g} mm, {out.stats['uncertified_cubes']:,} of the "
-                              f"{out.stats['band_cubes']:,} band cubes could not be certified (the curvature bounds "
-                              f"are large where struts meet), and a larger --tol does not make them larger "
-                              f"(docs/mesh.md, 'One cube size everywhere')") from None
-        # the cubes first: an attempt they cannot certify is not triangulated (but the last)
-        g, Hr = _cube_bounds(fld, grid, band)
-        d_cell = _surface_to_mesh(fld, grid, band, g, Hr, np.zeros(len(band)), tol)
-        b = float(d_cell.max()) if len(d_cell) else 0.0
-        stats = {"attempts": attempt, "band_cubes": int(len(band)), "settled_inside": counts["inside"],
-                 "settled_outside": counts["outside"]}
-        if b <= tol or attempt == attempts:
-            verts, faces, owner = _triangles(fld, grid, band)
-            d_tri, resid = _triangle_distances(fld, verts, faces, tol)
-            worst = np.zeros(len(band))
-            if len(faces):
-                np.maximum.at(worst, owner, resid[faces].max(axis=1))
-            if (worst > RESIDUAL).any():      # certified again with the residuals found
-                redo = _neighbourhood_max(band, worst) > RESIDUAL
-                d_redo = _cube_distances(fld, grid, band, g, Hr, worst, tol, redo)
-                again = ~(d_redo <= tol)
-                if again.any():
-                    which = np.zeros(len(band), bool)
-                    which[np.flatnonzero(redo)[again]] = True
-                    d_redo[again] = _cube_distances(fld, grid, band, g, Hr, worst, tol, which, split=SPLIT_LEVELS)
-                d_cell[redo] = d_redo
-                b = float(d_cell.max())
-            a = float(d_tri.max()) if len(d_tri) else 0.0
-            stats.update(triangles=int(len(faces)), uncertified_triangles=int(np.isinf(d_tri).sum()))
-        else:
-            verts, faces, a = np.zeros((0, 3)), np.zeros((0, 3), np.int64), math.nan
-        bad = ~np.isfinite(d_cell)
-        stats.update(uncertified_cubes=int(bad.sum()), field_points=fld.points, field_balls=fld.balls)
-        bound = max(a, b) if len(faces) else b
-        out = SurfaceMesh(verts, faces, tol, bound, a, b, h, stats)
-        if bound <= tol:
-            break
-        if math.isfinite(bound):
-            h *= min(0.85, max(0.5, 0.95 * math.sqrt(tol / bound)))
-        else:       # some cubes or triangles not certified at all: as small as the cubes ask, at least 0.5 h
-            wish = _next_cell(h, g[bad], Hr[bad])
-            h *= min(0.85, max(0.5, wish / h)) if math.isfinite(wish) else 0.7
+    fld = MeshField(skel)
+    out, _ = uniform_mesh(fld, tol, cell, attempts)
     if compact and out.certified:
         out = simplified(fld, out, tol) or out
     out.stats["seconds"] = time.perf_counter() - start
     return out
 
 
-__all__ = ["mesh_scene", "SurfaceMesh", "DEFAULT_TOL", "lattice_of"]
+__all__ = ["mesh_scene", "uniform_mesh", "Band", "SurfaceMesh", "DEFAULT_TOL", "lattice_of"]

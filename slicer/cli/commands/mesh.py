@@ -10,7 +10,8 @@ from slicer.errors import OutputError
 from slicer.job.run import check_not_input
 from slicer.meshing.beams3mf import write_beam_lattice
 from slicer.meshing.output import mesh_format, write_mesh
-from slicer.meshing.surface import DEFAULT_TOL, mesh_scene
+from slicer.meshing.composite import mesh_part
+from slicer.meshing.surface import DEFAULT_TOL
 from slicer.cli.commands.options import blend_option, load_part_from, part_inputs, part_options, positive, radius_option
 
 
@@ -36,8 +37,10 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
             quiet):
     """Mesh SCENE's surface with a certified Hausdorff bound, or write its skeleton as a 3MF beam lattice.
 
-    The surface mesh is closed, consistently wound and manifold; the command
-    prints the bound it certified (exit status 1 if it could not certify --tol).
+    The surface mesh is closed, consistently wound and manifold: the lattice's
+    surface, clipped by the part's clipping meshes and united with its solid
+    meshes. The command prints the bound it certified (exit status 1 if it
+    could not certify --tol).
 
     Example: skelslice mesh octet.json -o octet.stl --tol 0.01
     """
@@ -58,15 +61,18 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
     mesh_format(out)
     check_destination(out, force)
     with numba_threads(threads):
-        m = mesh_scene(part, tol=tol, compact=not uniform)
+        m = mesh_part(part, tol=tol, compact=not uniform)
     write_mesh(m.vertices, m.faces, out, force=force)
     st = m.stats
     if not quiet:
         click.echo(f"{len(m.faces):,} triangles, {len(m.vertices):,} vertices -> {out}; certified Hausdorff bound "
                    f"{m.bound:.4g} mm (mesh to surface {m.mesh_to_surface:.4g}, surface to mesh "
-                   f"{m.surface_to_mesh:.4g}; tolerance {tol:g}), cubes of {m.cell:.4g} mm, {st['attempts']} "
-                   f"attempt(s)" + (f", simplified from {st['uniform_triangles']:,} uniform triangles"
-                                    if "uniform_triangles" in st else "") + f", {st['seconds']:.1f} s")
+                   f"{m.surface_to_mesh:.4g}; tolerance {tol:g})"
+                   + (f", cubes of {m.cell:.4g} mm, {st['attempts']} attempt(s)" if "attempts" in st else "")
+                   + (f", {st['cubes_near_meshes']:,} cubes and {st['probed_pieces']:,} triangle pieces checked "
+                      f"against the part's meshes" if "probed_pieces" in st else "")
+                   + (f", simplified from {st['uniform_triangles']:,} uniform triangles"
+                      if "uniform_triangles" in st else "") + f", {st['seconds']:.1f} s")
     if not m.certified:
         click.echo(f"error: the bound {m.bound:.4g} mm is above --tol {tol:g} mm after {st['attempts']} attempts; "
                    f"the mesh is written but not certified", err=True)

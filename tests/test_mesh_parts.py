@@ -1,0 +1,148 @@
+"""The mesh of a part: the lattice's certified mesh with solid and clipping meshes
+(slicer.meshing.composite), checked independently (tests/mesh_checks.py, convex meshes decided
+by their face planes).
+
+* Each role (clip-inside, clip-outside, solid) and a mix: the mesh is watertight and consistently
+  wound, its certified bound is at most --tol, sampled mesh points have the part's surface
+  ``((S ∩ CI) − CO) ∪ M`` within the bound, and surface points found on random lines have the
+  mesh within it.
+* The certificate is not a formality: a lattice mesh moved off the surface near a clipping mesh
+  is refused by it.
+* Winding numbers against the face-plane test, and nested shells.
+* The command line meshes a lattice with a clipping mesh, and a mesh-only part; supports
+  (groups of struts that unite) are refused.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+from click.testing import CliRunner
+
+from mesh_checks import (convex_inside, part_mesh_points_off_surface, part_surface_points_on_lines,
+                         point_triangle_distance)
+from slicer import Skeleton
+from slicer._kernels.meshing.winding import winding_numbers
+from slicer.cli import main
+from slicer.errors import SceneError
+from slicer.meshing import composite, mesh_part, mesh_scene
+from slicer.meshing.certificate import MeshField
+from slicer.meshing.surface import uniform_mesh
+from slicer.parts.meshes import make_mesh
+from slicer.parts.part import Part, PartMesh
+from slicer.supports.groups import GroupedSkeleton
+
+
+def _box(size, centre=(0, 0, 0), turn=None):
+    m = trimesh.creation.box(size)
+    if turn is not None:
+        m.apply_transform(trimesh.transformations.rotation_matrix(turn, [1, 1, 0]))
+    m.apply_translation(centre)
+    return np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
+
+
+def _ico(radius, centre):
+    m = trimesh.creation.icosphere(subdivisions=1, radius=radius)
+    m.apply_translation(centre)
+    return np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
+
+
+def _struts():
+    return Skeleton([[-1.2, 0, -0.6], [1.2, 0.2, 0.6], [0, -1.2, 0.3], [0.1, 1.2, -0.2]], [[0, 1], [2, 3]],
+                    [[0.45, 0.35], [0.4, 0.4]])
+
+
+CASES = {
+    "clip-inside": [("clip-inside", _box((1.6, 1.8, 1.4), (0.1, 0, 0), turn=0.4))],
+    "clip-outside": [("clip-outside", _ico(0.6, (0.3, 0.2, 0.1)))],
+    "solid": [("solid", _box((0.8, 0.8, 0.8), (-0.5, 0.1, 0.0), turn=0.7))],
+    "mixed": [("clip-inside", _ico(1.1, (0, 0, 0))), ("clip-outside", _box((0.5, 3, 0.5), (0.2, 0, 0))),
+              ("solid", _ico(0.35, (0.9, 0.0, 0.2)))],
+}
+
+
+def _part(skel, meshes):
+    return Part(skel, tuple(PartMesh(make_mesh(v, f, f"{role} {i}"), role) for i, (role, (v, f)) in
+                            enumerate(meshes)))
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_a_part_is_meshed_within_the_tolerance(case):
+    skel, tol = _struts(), 0.1
+    m = mesh_part(_part(skel, CASES[case]), tol=tol)
+    t = m.trimesh()
+    assert m.certified and 0 < m.bound <= tol
+    assert t.is_watertight and t.is_winding_consistent and t.volume > 0
+    roles = {}
+    for role, mesh in CASES[case]:
+        roles.setdefault(role, []).append(mesh)
+    assert not len(part_mesh_points_off_surface(skel, roles, m.vertices, m.faces, m.bound))
+    pts = part_surface_points_on_lines(skel, roles, [-1.5, -1.5, -1.2], [1.5, 1.5, 1.2], n_lines=60)
+    assert len(pts) > 15
+    assert point_triangle_distance(pts, m.vertices[m.faces]).max() <= m.bound
+
+
+def test_a_lattice_mesh_off_its_surface_is_not_certified():
+    """The part's certificate checks the lattice's mesh where the meshes cut it: a lattice mesh
+    pushed outward by 2.5 tol (its own bounds kept, as a wrong lattice mesher would report them)
+    gives caps wider than the true solid's, which the probes find."""
+    skel = Skeleton([[0, 0, -2], [0, 0, 2]], [[0, 1]], [[0.6, 0.6]])
+    tol = 0.05
+    part = _part(skel, [("clip-inside", _box((3, 3, 2)))])
+    fld = MeshField(skel)
+    lattice, band = uniform_mesh(fld, tol, None, 6)
+    meshes = composite._Meshes(part)
+    good = composite._combine((lattice.vertices, lattice.faces), meshes)
+    a, s, _ = composite._certify(fld, meshes, band, lattice, *good, tol)
+    assert max(a, s) <= tol
+    moved = lattice.vertices.copy()
+    radial = np.linalg.norm(moved[:, :2], axis=1)
+    side = np.abs(moved[:, 2]) < 1.5                 # the cylinder's side, not its round ends
+    moved[side, :2] *= ((radial[side] + 2.5 * tol) / radial[side])[:, None]
+    bad = composite._combine((moved, lattice.faces), meshes)
+    a, s, _ = composite._certify(fld, meshes, band, lattice, *bad, tol)
+    assert not a <= tol
+
+
+def test_winding_numbers():
+    v, f = _box((1, 2, 3), (0.5, 0, 0), turn=0.3)
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-2, 2, size=(400, 3))
+    w = winding_numbers(p, v, f)
+    assert np.allclose(w, convex_inside(v, f, p).astype(float), atol=1e-9)
+    v2, f2 = _box((0.5, 0.5, 0.5), (0.5, 0, 0))
+    both = composite._joined([(v, f), (v2, f2)])
+    assert math.isclose(winding_numbers(np.array([[0.5, 0, 0]]), *both)[0], 2.0, abs_tol=1e-9)
+
+
+def test_cli_meshes_a_clipped_lattice_and_a_mesh_only_part(tmp_path):
+    scene = tmp_path / "s.json"
+    _struts().save(scene)
+    v, f = CASES["clip-inside"][0][1]
+    trimesh.Trimesh(v, f).export(tmp_path / "clip.stl")
+    out = tmp_path / "m.stl"
+    res = CliRunner().invoke(main, ["mesh", str(scene), "-o", str(out), "--tol", "0.1",
+                                    "--clip-inside", str(tmp_path / "clip.stl")])
+    assert res.exit_code == 0, res.output
+    bound = float(res.output.split("certified Hausdorff bound ")[1].split()[0])
+    assert 0 < bound <= 0.1 and "checked against the part's meshes" in res.output
+    t = trimesh.load(out, force="mesh")
+    assert t.is_watertight and t.is_winding_consistent
+    # inside the clip box's bounds
+    assert (t.bounds[0] >= v.min(axis=0) - 1e-6).all() and (t.bounds[1] <= v.max(axis=0) + 1e-6).all()
+    solid = tmp_path / "solid.stl"
+    trimesh.creation.box((1, 1, 1)).export(solid)
+    res = CliRunner().invoke(main, ["mesh", str(solid), "-o", str(tmp_path / "b.ply")])
+    assert res.exit_code == 0, res.output
+    assert abs(trimesh.load(tmp_path / "b.ply").volume - 1.0) < 1e-9
+
+
+def test_supports_are_refused():
+    g = GroupedSkeleton([[0, 0, 0], [0, 0, 4], [3, 0, 0]], [[0, 1], [0, 2]], [[1, 1], [1, 1]],
+                        groups=(("model", 0, 1), ("support", 1, 2)))
+    with pytest.raises(SceneError, match="groups that unite"):
+        mesh_scene(g)
+    with pytest.raises(SceneError, match="groups that unite"):
+        mesh_part(Part(g, (PartMesh(make_mesh(*_box((1, 1, 1)), "box"), "solid"),)))
