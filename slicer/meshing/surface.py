@@ -51,8 +51,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
-from functools import cached_property
+from dataclasses import dataclass, field
 from itertools import permutations
 
 import numpy as np
@@ -483,6 +482,8 @@ class Band:
 
     grid: _Grid
     cubes: np.ndarray
+    #: sorted keys of the cubes holding band cubes, per level (filled as :meth:`contains` asks)
+    _keys_by_level: dict = field(default_factory=dict, init=False, repr=False)
 
     @property
     def h(self) -> float:
@@ -499,10 +500,6 @@ class Band:
         span = ((self.grid.coarse << self.grid.levels) >> level) + 3
         idx = np.clip(idx + 1, 0, span - 1)
         return (idx[..., 2] * span[1] + idx[..., 1]) * span[0] + idx[..., 0]
-
-    @cached_property
-    def _keys_by_level(self) -> dict:
-        return {}
 
     def contains(self, idx: np.ndarray, level: int = 0) -> np.ndarray:
         """Whether each cube index triple (..., 3) is a band cube, or (``level`` > 0) a cube
