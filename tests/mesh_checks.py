@@ -106,11 +106,19 @@ def convex_inside(vertices, faces, points):
     return out
 
 
-def part_inside(skel, roles, points):
+def lattice_field(skel, points, blend="sum"):
+    """The scene's field at points: a supported scene's largest group field (its own
+    ``field``), else the field of ``blend``."""
+    if getattr(skel, "groups", ()):
+        return skel.field(points, blend)
+    return evaluate(skel, points, blend=blend)[0]
+
+
+def part_inside(skel, roles, points, blend="sum"):
     """Whether each point is in ``((S ∩ CI) − CO) ∪ M``: ``roles`` maps a role to a list of convex
-    (vertices, faces); S is ``F >= 1``."""
+    (vertices, faces); S is ``F >= 1`` (:func:`lattice_field`)."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
-    s = evaluate(skel, points)[0] >= 1.0 if skel is not None else np.zeros(len(points), bool)
+    s = lattice_field(skel, points, blend) >= 1.0 if skel is not None else np.zeros(len(points), bool)
 
     def any_of(role, empty):
         ms = roles.get(role, [])
@@ -121,7 +129,8 @@ def part_inside(skel, roles, points):
     return (s & any_of("clip-inside", True) & ~any_of("clip-outside", False)) | any_of("solid", False)
 
 
-def part_mesh_points_off_surface(skel, roles, vertices, faces, tol, k_per_face=2, seed=0, steps=41):
+def part_mesh_points_off_surface(skel, roles, vertices, faces, tol, k_per_face=2, seed=0, steps=41,
+                                 blend="sum"):
     """Points sampled on the mesh with no change of :func:`part_inside` on any of 54 segments
     ``p ± tol u`` (u: the face's normal, 13 axes of a cube's neighbours, 40 random), sampled
     ``steps`` times; empty:
@@ -144,12 +153,12 @@ def part_mesh_points_off_surface(skel, roles, vertices, faces, tol, k_per_face=2
         if not len(todo):
             break
         pts = p[todo, None, :] + t[None, :, None] * u[todo, None, :]
-        inside = part_inside(skel, roles, pts.reshape(-1, 3)).reshape(len(todo), steps)
+        inside = part_inside(skel, roles, pts.reshape(-1, 3), blend).reshape(len(todo), steps)
         ok[todo] = inside.any(axis=1) & ~inside.all(axis=1)
     return p[~ok]
 
 
-def part_surface_points_on_lines(skel, roles, lo, hi, n_lines=40, step=0.004, seed=1):
+def part_surface_points_on_lines(skel, roles, lo, hi, n_lines=40, step=0.004, seed=1, blend="sum"):
     """Points of the part's surface (each to 1e-12 mm) on random lines through random points of
     the box ``lo``..``hi``: changes of :func:`part_inside` found by dense sampling and bisection."""
     rng = np.random.default_rng(seed)
@@ -161,12 +170,12 @@ def part_surface_points_on_lines(skel, roles, lo, hi, n_lines=40, step=0.004, se
         d = rng.normal(size=3)
         d /= np.linalg.norm(d)
         t = np.arange(-span, span, step)
-        ins = part_inside(skel, roles, a + t[:, None] * d)
+        ins = part_inside(skel, roles, a + t[:, None] * d, blend)
         for i in np.flatnonzero(ins[:-1] != ins[1:]):
             t0, t1, s0 = t[i], t[i + 1], ins[i]
             for _ in range(50):
                 tm = 0.5 * (t0 + t1)
-                if part_inside(skel, roles, (a + tm * d)[None])[0] == s0:
+                if part_inside(skel, roles, (a + tm * d)[None], blend)[0] == s0:
                     t0 = tm
                 else:
                     t1 = tm

@@ -9,11 +9,15 @@ by their face planes).
 * The certificate is not a formality: a lattice mesh moved off the surface near a clipping mesh
   is refused by it.
 * Winding numbers against the face-plane test, and nested shells.
-* The command line meshes a lattice with a clipping mesh, and a mesh-only part; supports
-  (groups of struts that unite) are refused.
+* Unions: a supported scene (model, supports) and the union blend, checked against the scene's
+  own union field (which tells the union from the sum); the classes of struts that unite have
+  disjoint supports (their sum is their largest field).
+* The command line meshes a lattice with a clipping mesh, a mesh-only part and a supported
+  scene.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -28,10 +32,11 @@ from slicer._kernels.meshing.winding import winding_numbers
 from slicer.cli import main
 from slicer.errors import SceneError
 from slicer.meshing import composite, mesh_part, mesh_scene
-from slicer.meshing.certificate import MeshField
-from slicer.meshing.surface import uniform_mesh
+from slicer.meshing.unions import disjoint_classes
+from slicer.model.field import evaluate
 from slicer.parts.meshes import make_mesh
 from slicer.parts.part import Part, PartMesh
+from slicer.supports.build import write_supported
 from slicer.supports.groups import GroupedSkeleton
 
 
@@ -91,18 +96,19 @@ def test_a_lattice_mesh_off_its_surface_is_not_certified():
     skel = Skeleton([[0, 0, -2], [0, 0, 2]], [[0, 1]], [[0.6, 0.6]])
     tol = 0.05
     part = _part(skel, [("clip-inside", _box((3, 3, 2)))])
-    fld = MeshField(skel)
-    lattice, band = uniform_mesh(fld, tol, None, 6)
+    lattices = composite._Lattices([skel])
+    lattices.mesh(tol, None, 6)
     meshes = composite._Meshes(part)
-    good = composite._combine((lattice.vertices, lattice.faces), meshes)
-    a, s, _ = composite._certify(fld, meshes, band, lattice, *good, tol)
+    good = composite._combine(lattices.meshes, meshes)
+    a, s, _ = composite._certify(lattices, meshes, *good, tol)
     assert max(a, s) <= tol
+    lattice = lattices.meshes[0]
     moved = lattice.vertices.copy()
     radial = np.linalg.norm(moved[:, :2], axis=1)
     side = np.abs(moved[:, 2]) < 1.5                 # the cylinder's side, not its round ends
     moved[side, :2] *= ((radial[side] + 2.5 * tol) / radial[side])[:, None]
-    bad = composite._combine((moved, lattice.faces), meshes)
-    a, s, _ = composite._certify(fld, meshes, band, lattice, *bad, tol)
+    bad = composite._combine([dataclasses.replace(lattice, vertices=moved)], meshes)
+    a, s, _ = composite._certify(lattices, meshes, *bad, tol)
     assert not a <= tol
 
 
@@ -127,7 +133,7 @@ def test_cli_meshes_a_clipped_lattice_and_a_mesh_only_part(tmp_path):
                                     "--clip-inside", str(tmp_path / "clip.stl")])
     assert res.exit_code == 0, res.output
     bound = float(res.output.split("certified Hausdorff bound ")[1].split()[0])
-    assert 0 < bound <= 0.1 and "checked against the part's meshes" in res.output
+    assert 0 < bound <= 0.1 and "where the lattice meets the part's meshes" in res.output
     t = trimesh.load(out, force="mesh")
     assert t.is_watertight and t.is_winding_consistent
     # inside the clip box's bounds
@@ -139,10 +145,70 @@ def test_cli_meshes_a_clipped_lattice_and_a_mesh_only_part(tmp_path):
     assert abs(trimesh.load(tmp_path / "b.ply").volume - 1.0) < 1e-9
 
 
-def test_supports_are_refused():
-    g = GroupedSkeleton([[0, 0, 0], [0, 0, 4], [3, 0, 0]], [[0, 1], [0, 2]], [[1, 1], [1, 1]],
-                        groups=(("model", 0, 1), ("support", 1, 2)))
-    with pytest.raises(SceneError, match="groups that unite"):
-        mesh_scene(g)
-    with pytest.raises(SceneError, match="groups that unite"):
-        mesh_part(Part(g, (PartMesh(make_mesh(*_box((1, 1, 1)), "box"), "solid"),)))
+def _supported():
+    """A model strut and two support struts at its end, one grazing its rounded cap."""
+    return GroupedSkeleton([[0, 0, 0], [0, 0, 4], [3, 0, 0], [0, 0, -3]], [[0, 1], [0, 2], [0, 3]],
+                           [[1, 1], [0.6, 0.6], [0.7, 0.5]], groups=(("model", 0, 1), ("support", 1, 3)))
+
+
+def _star():
+    """Three struts meeting at a node, where the sum bulges beyond the union."""
+    return Skeleton([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0, 0, 2]], [[0, 1], [0, 2], [0, 3]], [[0.5, 0.5]] * 3)
+
+
+@pytest.mark.parametrize("case", ["supports", "union"])
+def test_united_solids_are_meshed_within_the_tolerance(case):
+    """A supported scene (the model's solid united with every support strut's) and the union
+    blend are meshed as unions of summed lattices, checked against the scene's own union field."""
+    skel, blend, box = (_supported(), "sum", ([-1.5, -1.5, -3.5], [3.5, 1.5, 4.5])) if case == "supports" else \
+        (_star(), "union", ([-0.7, -0.7, -0.7], [2.7, 2.7, 2.7]))
+    tol = 0.1
+    m = mesh_part(skel, tol=tol, blend=blend)
+    t = m.trimesh()
+    assert m.certified and 0 < m.bound <= tol and m.stats["lattices"] == 3
+    assert t.is_watertight and t.is_winding_consistent and t.volume > 0
+    assert not len(part_mesh_points_off_surface(skel, {}, m.vertices, m.faces, m.bound, blend=blend))
+    pts = part_surface_points_on_lines(skel, {}, *box, n_lines=40, blend=blend)
+    assert len(pts) > 15
+    assert point_triangle_distance(pts, m.vertices[m.faces]).max() <= m.bound
+    if case == "union":     # the check tells the blends apart: the sum's mesh bulges at the node
+        summed = mesh_part(skel, tol=tol)
+        assert len(part_mesh_points_off_surface(skel, {}, summed.vertices, summed.faces, tol, blend=blend))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_struts_of_a_class_have_disjoint_supports(seed):
+    """Within each class of struts that unite, the summed field is the largest strut's field."""
+    rng = np.random.default_rng(seed)
+    n = 30
+    nodes = rng.uniform(0, 12, size=(n, 3))
+    seg = np.array([(i, j) for i, j in rng.integers(0, n, size=(40, 2)) if i != j])
+    skel = Skeleton(nodes, seg, rng.uniform(0.2, 0.8, size=(len(seg), 2)))
+    classes = disjoint_classes(skel, np.arange(len(seg)))
+    assert sorted(np.concatenate(classes).tolist()) == list(range(len(seg)))
+    assert len(classes) < len(seg)
+    pts = np.concatenate([rng.uniform(-1, 13, size=(4000, 3)),
+                          (nodes[seg[:, 0]] + rng.uniform(0, 1, (len(seg), 1)) * (nodes[seg[:, 1]] - nodes[seg[:, 0]])
+                           + rng.normal(0, 0.5, (len(seg), 3)))])
+    for c in classes:
+        sub = Skeleton(nodes, seg[c], skel.radii[c])
+        assert np.array_equal(evaluate(sub, pts)[0], evaluate(sub, pts, blend="union")[0])
+
+
+def test_mesh_scene_points_unions_to_mesh_part():
+    with pytest.raises(SceneError, match="groups that unite.*mesh_part"):
+        mesh_scene(_supported())
+
+
+def test_cli_meshes_a_supported_scene(tmp_path):
+    scene = tmp_path / "supported.json"
+    write_supported(_supported(), scene)
+    out = tmp_path / "m.ply"
+    # --blend union: the model's one strut is a solid of its own too (the same three)
+    res = CliRunner().invoke(main, ["mesh", str(scene), "-o", str(out), "--tol", "0.1", "--blend", "union"])
+    assert res.exit_code == 0, res.output
+    assert "3 summed lattices united" in res.output and "where the united lattices meet" in res.output
+    t = trimesh.load(out, force="mesh")
+    assert t.is_watertight and t.is_winding_consistent
+    # the supports reach below the model: the mesh spans the support strut's length
+    assert t.bounds[0][2] < -3.0 and t.bounds[1][0] > 3.0

@@ -343,7 +343,7 @@ def test_every_format_reads_back(meshed, tmp_path, suffix):
 @pytest.mark.parametrize("args, needle_text", [
     (["-o", "{d}/m.xyz"], "unknown mesh file type"),
     (["-o", "{d}/m.stl", "--tol", "0"], "--tol"),
-    (["-o", "{d}/m.stl", "--blend", "union"], "union"),
+    (["-o", "{d}/m.stl", "--blend", "max"], "--blend"),
     (["-o", "{d}/m.stl", "--beams"], "name the output .3mf"),
 ])
 def test_cli_refusals_write_nothing(tmp_path, args, needle_text):

@@ -60,6 +60,8 @@ from slicer.errors import SceneError
 from slicer.meshing.certificate import MeshField, SurfaceMesh
 from slicer.meshing.compact import MAX_CELLS, PIECES, mesh_to_mesh, simplified, triangle_bounds
 from slicer.meshing.surface import ATTEMPTS, DEFAULT_TOL, Band, lattice_of, mesh_scene, settle, uniform_mesh
+from slicer.meshing.unions import united_lattices
+from slicer.model.blend import check_blend
 from slicer.parts.part import Part, as_part
 
 #: lattice meshes tried, each at half the tolerance of the one before
@@ -68,6 +70,11 @@ ROUNDS = 3
 ROOM = 0.75
 #: a piece of a triangle is probed once its radius is at most this share of the tolerance
 PIECE_SHARE = 0.5
+#: a probed piece whose bound is above this share of the tolerance is halved again (room for the
+#: simplification) ...
+GOAL_SHARE = 0.5
+#: ... while its radius is above this share
+FINEST_SHARE = 1.0 / 32.0
 #: most halvings of a triangle near the meshes
 PIECE_DEPTH = 30
 #: probe distances ``t = (tol − ρ) / 2**k``, k from this down to 0
@@ -89,6 +96,14 @@ F_MARGIN = 1e-10
 SLACK = 1e-9
 #: the roles' order in :class:`_Meshes`
 ROLES = ("clip-inside", "clip-outside", "solid")
+#: lattices united at most (a bit each in :class:`_Occupancy`)
+MAX_LATTICES = 64
+#: the side of :class:`_Occupancy`'s cells, in the largest band cube side
+OCCUPANCY_CELLS = 2
+_CELL_RANGE = 1 << 21
+_LEVELS = 21
+_QUERY_ROWS = 200_000
+_STEPS = np.stack(np.meshgrid(*[np.arange(3)] * 3, indexing="ij"), -1).reshape(-1, 3)
 
 
 class _Meshes:
@@ -190,6 +205,175 @@ class _Index:
         return (d > x * (1.0 + DISTANCE_SLACK) + GAP) & (x <= self.reach)
 
 
+class _Lattices:
+    """The lattice's solid ``S`` as the union of summed lattices (:func:`slicer.meshing.unions.united_lattices`:
+    one for a lattice; the model and classes of support struts for a supported scene), each
+    with its field, and once meshed (:meth:`mesh`) its certified uniform mesh and band."""
+
+    def __init__(self, skeletons):
+        if len(skeletons) > MAX_LATTICES:
+            raise SceneError(f"the struts that unite fall in {len(skeletons)} classes of struts with disjoint "
+                             f"supports; the mesher unites at most {MAX_LATTICES} (docs/mesh.md, 'Unions')",
+                             skeletons[0].source)
+        self.fields = [MeshField(lattice_of(s)) for s in skeletons]
+
+    def __len__(self) -> int:
+        return len(self.fields)
+
+    def mesh(self, tol: float, cell: float | None, attempts: int) -> None:
+        """Mesh each lattice uniformly (:func:`slicer.meshing.surface.uniform_mesh`)."""
+        self.meshes, self.bands = [], []
+        for fld in self.fields:
+            m, band = uniform_mesh(fld, tol, cell, attempts)
+            self.meshes.append(m)
+            self.bands.append(band)
+        self.a = np.array([m.mesh_to_surface for m in self.meshes])
+        self.s = np.array([m.surface_to_mesh for m in self.meshes])
+        self.h = max(b.h for b in self.bands)
+        if len(self) > 1:
+            self.occupancy = _Occupancy(self.bands, OCCUPANCY_CELLS * self.h)
+
+    @property
+    def certified(self) -> bool:
+        return all(m.certified for m in self.meshes)
+
+    def stats(self) -> dict:
+        """The meshes' counts: the first lattice's, with sums of the counts and the largest bound."""
+        out = dict(self.meshes[0].stats)
+        for m in self.meshes[1:]:
+            for k, v in m.stats.items():
+                if isinstance(v, int) and k != "attempts":
+                    out[k] = out.get(k, 0) + v
+                elif k == "attempts":
+                    out[k] = max(out[k], v)
+        out.update(lattices=len(self), lattice_bound=max(m.bound for m in self.meshes))
+        return out
+
+    def inside(self, points: np.ndarray):
+        """``(known, inside)`` of each point in ``S``: inside when some field is above
+        ``1 + F_MARGIN``, outside when all are below ``1 − F_MARGIN``, else not known."""
+        inside = np.zeros(len(points), bool)
+        below = np.ones(len(points), bool)
+        for fld in self.fields:
+            f = fld.values(points)[0]
+            inside |= f > 1.0 + F_MARGIN
+            below &= f < 1.0 - F_MARGIN
+        return inside | below, inside
+
+    def settle(self, centres: np.ndarray, radius: float):
+        """``(inside, outside)``: ``S`` proved to fill, or to miss, each ball ``B(c, radius)``."""
+        ins = np.zeros(len(centres), bool)
+        out = np.ones(len(centres), bool)
+        for fld in self.fields:
+            i, o = settle(fld, centres, radius)
+            ins |= i
+            out &= o
+        return ins, out
+
+    def meets(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """(n,) bool: whether each box ``[lo, hi]`` ((n, 3) each, mm) may meet a band cube (False:
+        proved not to)."""
+        if len(self) == 1:
+            return _meets_band(self.bands[0], lo, hi)
+        return self.occupancy.masks(lo, hi) != 0
+
+    def owner(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """(n,) int64: the one lattice whose band each box may meet (-1: none, or several)."""
+        if len(self) == 1:
+            return np.where(_meets_band(self.bands[0], lo, hi), 0, -1)
+        m = self.occupancy.masks(lo, hi)
+        single = (m != 0) & ((m & (m - np.uint64(1))) == 0)
+        g = np.full(len(lo), -1, np.int64)
+        g[single] = np.round(np.log2(m[single].astype(np.float64))).astype(np.int64)
+        return g
+
+    def outside_others(self, g: int, points: np.ndarray) -> np.ndarray:
+        """(n,) bool: whether each point is outside the solid of every lattice but ``g``
+        (its field below ``1 − F_MARGIN``)."""
+        out = np.ones(len(points), bool)
+        for k, fld in enumerate(self.fields):
+            if k != g and len(points):
+                out &= fld.values(points)[0] < 1.0 - F_MARGIN
+        return out
+
+    def others_meet(self, g: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """(n,) bool: whether each box may meet a band cube of a lattice other than ``g``."""
+        if len(self) == 1:
+            return np.zeros(len(lo), bool)
+        return (self.occupancy.masks(lo, hi) & ~np.uint64(1 << g)) != 0
+
+
+class _Occupancy:
+    """Which lattices' bands reach each cell of a coarse grid common to them: per cell (side
+    ``side``, mm), a bit per lattice whose band cubes meet it (at most :data:`MAX_LATTICES`),
+    and the same for cells ``2**level`` times larger.
+
+    A box's bits are those of the cells it meets, at the finest level where it meets at most
+    three per axis: a superset of the lattices whose band cubes it meets, so a box with no bit
+    meets no band, and a box with one bit meets no other band.
+    """
+
+    def __init__(self, bands, side: float):
+        self.side = float(side)
+        self.origin = np.min([b.grid.origin for b in bands], axis=0) - self.side
+        keys, bits = [], []
+        corners = np.stack(np.meshgrid(*[np.arange(2)] * 3, indexing="ij"), -1).reshape(-1, 3)
+        for g, band in enumerate(bands):
+            lo = band.grid.origin + band.cubes * band.h
+            a = self._cells(lo)
+            b = self._cells(lo + band.h)           # at most one more per axis (h <= side)
+            k = np.unique(np.concatenate([self._key(a + c * (b - a)) for c in corners]))
+            keys.append(k)
+            bits.append(np.full(len(k), np.uint64(1 << g), np.uint64))
+        keys, bits = np.concatenate(keys), np.concatenate(bits)
+        self.levels = []
+        for level in range(_LEVELS):       # each level's cells from the one below's
+            if level:
+                keys = self._key(self._unkey(keys) >> 1)
+            keys, inverse = np.unique(keys, return_inverse=True)
+            merged = np.zeros(len(keys), np.uint64)
+            np.bitwise_or.at(merged, inverse.ravel(), bits)
+            bits = merged
+            self.levels.append((keys, bits))
+
+    def _cells(self, p: np.ndarray) -> np.ndarray:
+        return np.clip(np.floor((p - self.origin) / self.side), 0, _CELL_RANGE - 1).astype(np.int64)
+
+    @staticmethod
+    def _key(idx: np.ndarray) -> np.ndarray:
+        return (idx[..., 2] * _CELL_RANGE + idx[..., 1]) * _CELL_RANGE + idx[..., 0]
+
+    @staticmethod
+    def _unkey(k: np.ndarray) -> np.ndarray:
+        return np.stack([k % _CELL_RANGE, (k // _CELL_RANGE) % _CELL_RANGE, k // (_CELL_RANGE * _CELL_RANGE)], -1)
+
+    def masks(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """(n,) uint64: the bits of each box ``[lo, hi]`` ((n, 3) each, mm)."""
+        out = np.zeros(len(lo), np.uint64)
+        for s in range(0, len(lo), _QUERY_ROWS):
+            out[s:s + _QUERY_ROWS] = self._masks(self._cells(lo[s:s + _QUERY_ROWS]), self._cells(hi[s:s + _QUERY_ROWS]))
+        return out
+
+    def _masks(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(a), np.uint64)
+        todo = np.arange(len(a))
+        for level, (keys, bits) in enumerate(self.levels):
+            if not len(todo):
+                break
+            a_k, b_k = a[todo] >> level, b[todo] >> level
+            fits = ((b_k - a_k) <= 2).all(axis=1) | (level == _LEVELS - 1)
+            if fits.any() and len(keys):
+                idx = a_k[fits][:, None, :] + _STEPS[None]
+                real = (idx <= b_k[fits][:, None, :]).all(axis=2)
+                k = self._key(idx)
+                j = np.minimum(np.searchsorted(keys, k), len(keys) - 1)
+                hit = (keys[j] == k) & real
+                out[todo[fits]] = np.bitwise_or.reduce(np.where(hit, bits[j], np.uint64(0)), axis=1)
+                # the top level holds everything in at most 3 cells per axis (_LEVELS covers the range)
+            todo = todo[~fits]
+        return out
+
+
 def _manifold(vertices: np.ndarray, faces: np.ndarray, name: str) -> manifold3d.Manifold:
     m = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.array(vertices, np.float64, order="C"),
                                               tri_verts=np.array(faces, np.uint64, order="C")))
@@ -209,20 +393,21 @@ def _arrays(m: manifold3d.Manifold):
     return np.ascontiguousarray(v), np.array(mesh.tri_verts, dtype=np.int64).reshape(-1, 3)
 
 
-def _combine(lattice, meshes: _Meshes):
+def _combine(lattices, meshes: _Meshes):
     """``((L ∩ CI) − CO) ∪ M`` by manifold3d: (v, 3) float64 and (t, 3) int64, outward.
 
     Parameters
     ----------
-    lattice : (vertices, faces) or None
-        The lattice's closed mesh ``L`` (None: no lattice).
+    lattices : list of SurfaceMesh
+        Closed meshes whose union is the lattice's mesh ``L`` (empty: no lattice).
     meshes : _Meshes
         The part's meshes by role.
     """
     out = None
     ms = meshes.manifolds
-    if lattice is not None and len(lattice[1]):
-        out = _manifold(lattice[0], lattice[1], "the lattice's mesh")
+    parts = [_manifold(m.vertices, m.faces, "the lattice's mesh") for m in lattices if len(m.faces)]
+    if parts:
+        out = parts[0] if len(parts) == 1 else manifold3d.Manifold.batch_boolean(parts, manifold3d.OpType.Add)
         if "clip-inside" in ms:
             out = out ^ ms["clip-inside"]
         if "clip-outside" in ms:
@@ -234,12 +419,11 @@ def _combine(lattice, meshes: _Meshes):
     return _arrays(out)
 
 
-def _inside_solid(fld: MeshField, meshes: _Meshes, points: np.ndarray):
+def _inside_solid(lat: _Lattices, meshes: _Meshes, points: np.ndarray):
     """``(known, inside)`` of each point in the true solid ``T``."""
-    f = fld.values(points)[0]
+    known_s, in_s = lat.inside(points)
     known, kept, filled = meshes.decided(points)
-    known &= np.abs(f - 1.0) > F_MARGIN
-    return known, filled | (kept & (f >= 1.0))
+    return known & known_s, filled | (kept & in_s)
 
 
 def _halves(p: np.ndarray) -> np.ndarray:
@@ -253,15 +437,15 @@ def _halves(p: np.ndarray) -> np.ndarray:
     return np.stack([np.stack([a, m, c], 1), np.stack([m, b, c], 1)], 1).reshape(-1, 3, 3)
 
 
-def _meets_band(band: Band, pieces: np.ndarray) -> np.ndarray:
-    """Whether each piece's box (k, 3, 3 corners) meets a band cube: looked up among the cubes
-    ``2**level`` times the band's side that hold band cubes, at the finest level where the box
-    spans at most 4 of them per axis."""
+def _meets_band(band: Band, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
+    """Whether each box ``[box_lo, box_hi]`` ((k, 3) each, mm) meets a band cube: looked up among
+    the cubes ``2**level`` times the band's side that hold band cubes, at the finest level where
+    the box spans at most 4 of them per axis."""
     g = band.grid
-    lo = np.floor((pieces.min(axis=1) - g.origin) / g.h - 1e-7).astype(np.int64)
-    hi = np.floor((pieces.max(axis=1) - g.origin) / g.h + 1e-7).astype(np.int64)
-    out = np.zeros(len(pieces), bool)
-    todo = np.arange(len(pieces))
+    lo = np.floor((box_lo - g.origin) / g.h - 1e-7).astype(np.int64)
+    hi = np.floor((box_hi - g.origin) / g.h + 1e-7).astype(np.int64)
+    out = np.zeros(len(lo), bool)
+    todo = np.arange(len(lo))
     steps = np.stack(np.meshgrid(*[np.arange(4)] * 3, indexing="ij"), -1).reshape(-1, 3)
     level = 0
     while len(todo):
@@ -276,7 +460,7 @@ def _meets_band(band: Band, pieces: np.ndarray) -> np.ndarray:
     return out
 
 
-def _probe(fld: MeshField, meshes: _Meshes, centres: np.ndarray, normals: np.ndarray, reach: np.ndarray) -> np.ndarray:
+def _probe(lat: _Lattices, meshes: _Meshes, centres: np.ndarray, normals: np.ndarray, reach: np.ndarray) -> np.ndarray:
     """Per point ``c`` with unit normal ``n``: a probe distance ``t <= reach`` such that two points
     of ``B(c, t)`` are on opposite sides of T, which puts T's surface in the ball (inf: none found).
 
@@ -284,20 +468,21 @@ def _probe(fld: MeshField, meshes: _Meshes, centres: np.ndarray, normals: np.nda
     k from :data:`PROBE_STEPS` down to 0; then, where that found nothing or only beyond
     ``DENSE_ABOVE reach``, :data:`DENSE` distances along ``± n`` spaced evenly in log from
     ``reach / 1e9`` (a thin wedge of T or of its complement, where two surfaces meet at a small
-    angle); then, where nothing was found, ``c + t u`` for u in the 256 directions of
-    :func:`_directions` and the first ``t``'s.
+    angle); then, where that found nothing or only beyond ``DENSE_ABOVE reach`` (a surface nearly
+    tangent to the normal), ``c + t u`` for u in the 256 directions of :func:`_directions` and the
+    first ``t``'s below the distance found.
     """
     out = np.full(len(centres), np.inf)
-    k0, m0 = _inside_solid(fld, meshes, centres)
+    k0, m0 = _inside_solid(lat, meshes, centres)
     todo = np.flatnonzero(reach > 0)
 
     def found(ts, pts):
         """Where the points (pieces, m, 3) with ``c`` show both sides: record ``ts``."""
-        kk, mm = _inside_solid(fld, meshes, pts.reshape(-1, 3))
+        kk, mm = _inside_solid(lat, meshes, pts.reshape(-1, 3))
         kk = np.concatenate([kk.reshape(len(todo), -1), k0[todo, None]], axis=1)
         mm = np.concatenate([mm.reshape(len(todo), -1), m0[todo, None]], axis=1)
         ok = (kk & mm).any(axis=1) & (kk & ~mm).any(axis=1)
-        out[todo[ok]] = ts[ok]
+        out[todo[ok]] = np.minimum(out[todo[ok]], ts[ok])
         return todo[~ok]
 
     for k in range(PROBE_STEPS, -1, -1):
@@ -312,7 +497,7 @@ def _probe(fld: MeshField, meshes: _Meshes, centres: np.ndarray, normals: np.nda
         frac = np.logspace(-9.0, 0.0, DENSE)
         t = reach[todo, None] * frac[None]
         pts = centres[todo, None, None, :] + t[:, :, None, None] * np.stack([normals[todo], -normals[todo]], 1)[:, None]
-        kk, mm = _inside_solid(fld, meshes, pts.reshape(-1, 3))
+        kk, mm = _inside_solid(lat, meshes, pts.reshape(-1, 3))
         kk, mm = kk.reshape(len(todo), DENSE, 2), mm.reshape(len(todo), DENSE, 2)
         seen_in = np.logical_or.accumulate((kk & mm).any(axis=2), axis=1) | (k0[todo] & m0[todo])[:, None]
         seen_out = np.logical_or.accumulate((kk & ~mm).any(axis=2), axis=1) | (k0[todo] & ~m0[todo])[:, None]
@@ -320,11 +505,15 @@ def _probe(fld: MeshField, meshes: _Meshes, centres: np.ndarray, normals: np.nda
         ok = both.any(axis=1)
         first = both.argmax(axis=1)
         out[todo[ok]] = np.minimum(out[todo[ok]], t[ok, first[ok]])
-        todo = todo[~ok & np.isinf(out[todo])]
+    # in all directions, where nothing was found or only far (T's surface nearly tangent to the
+    # normal, as where a strut's surface grazes another's)
+    todo = np.flatnonzero((reach > 0) & ~(out <= DENSE_ABOVE * reach))
     for k in list(range(PROBE_STEPS, -1, -1)):
+        t = reach[todo] * 0.5 ** k
+        nearer = t < out[todo]
+        todo, t = todo[nearer], t[nearer]
         if not len(todo):
             return out
-        t = reach[todo] * 0.5 ** k
         todo = found(t, centres[todo, None, :] + t[:, None, None] * _DIRECTIONS[None])
     return out
 
@@ -345,39 +534,50 @@ def _directions(n: int) -> np.ndarray:
 _DIRECTIONS = _directions(230)
 
 
-def _mesh_to_surface(fld, meshes: _Meshes, band: Band, v: np.ndarray, f: np.ndarray, a_lattice: float, tol: float):
+def _mesh_to_surface(lat: _Lattices, meshes: _Meshes, v: np.ndarray, f: np.ndarray, tol: float):
     """Per triangle of R, a bound of its points' distance to T's surface, and the pieces probed."""
     tri = v[f]
     cen = tri.mean(axis=1)
     rho = np.linalg.norm(tri - cen[:, None], axis=2).max(axis=1)
     out = np.zeros(len(f))
-    far = meshes.farther(cen, rho + a_lattice)
-    out[far] = a_lattice
+    one = len(lat) == 1
+    # one lattice: a triangle far from the meshes is on L's surface (several: see the loop)
+    far = meshes.farther(cen, rho + lat.a[0]) if one else np.zeros(len(f), bool)
+    out[far] = lat.a[0]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     length = np.linalg.norm(normal, axis=1)
     normal = np.where(length[:, None] > 0, normal / np.where(length > 0, length, 1.0)[:, None], [0.0, 0.0, 1.0])
     owner = np.flatnonzero(~far)
     pieces = tri[owner]
     probed = 0
+    a_max = float(lat.a.max())
     for depth in range(PIECE_DEPTH + 1):
         if not len(pieces):
             break
         c = pieces.mean(axis=1)
         r = np.linalg.norm(pieces - c[:, None], axis=2).max(axis=1)
-        # off the band R = T; farther than a from the meshes a piece is on L's surface
-        meets = _meets_band(band, pieces)
+        lo, hi = pieces.min(axis=1), pieces.max(axis=1)
+        # off the bands R = T; farther than a_g from the meshes and from the other lattices' bands,
+        # a piece is on L_g's surface
+        meets = lat.meets(lo, hi)
+        g = np.zeros(len(pieces), np.int64) if one else lat.owner(lo - a_max, hi + a_max)
         out[owner[~meets]] = np.maximum(out[owner[~meets]], SLACK)
-        far = meets & meshes.farther(c, r + a_lattice)
-        out[owner[far]] = np.maximum(out[owner[far]], a_lattice)
+        a_g = lat.a[np.maximum(g, 0)]
+        far = meets & (g >= 0) & meshes.farther(c, r + a_g)
+        out[owner[far]] = np.maximum(out[owner[far]], a_g[far])
         keep = meets & ~far
         pieces, owner, c, r = pieces[keep], owner[keep], c[keep], r[keep]
         small = r <= PIECE_SHARE * tol
         if small.any():
-            t = _probe(fld, meshes, c[small], normal[owner[small]], tol - r[small] - SLACK)
-            np.maximum.at(out, owner[small], r[small] + t + SLACK)
+            t = _probe(lat, meshes, c[small], normal[owner[small]], tol - r[small] - SLACK)
+            d = r[small] + t + SLACK
             probed += int(small.sum())
-            if np.isinf(t).any():       # not certified: the rest cannot change that
+            # a piece certified above GOAL_SHARE tol is halved again, while it is wider than FINEST_SHARE tol
+            done = (d <= GOAL_SHARE * tol) | (r[small] <= FINEST_SHARE * tol) | np.isinf(d)
+            np.maximum.at(out, owner[small][done], d[done])
+            if np.isinf(d).any():       # not certified: the rest cannot change that
                 return out, probed
+            small[small] = done
         pieces, owner = pieces[~small], owner[~small]
         if depth == PIECE_DEPTH:
             out[owner] = np.inf
@@ -386,12 +586,12 @@ def _mesh_to_surface(fld, meshes: _Meshes, band: Band, v: np.ndarray, f: np.ndar
     return out, probed
 
 
-def _constant(fld, meshes: _Meshes, centres: np.ndarray, radius: float) -> np.ndarray:
+def _constant(lat: _Lattices, meshes: _Meshes, centres: np.ndarray, radius: float) -> np.ndarray:
     """Whether T = (S ∧ kept) ∨ filled is proved constant over each ball ``B(c, radius)``: inside
     when a solid fills it or S fills it where the lattice is kept; outside when no solid reaches it
     and S is outside or the lattice removed. A mesh's membership is constant over the ball when
     its union's surface is farther than the radius."""
-    ins, out = settle(fld, centres, radius)
+    ins, out = lat.settle(centres, radius)
     known, inside = meshes.inside(centres)
     away = {role: index.farther(centres, radius) for role, index in meshes.near_role.items()}
     n = len(centres)
@@ -411,52 +611,59 @@ def _constant(fld, meshes: _Meshes, centres: np.ndarray, radius: float) -> np.nd
     return filled_true | (ins & kept_true) | (filled_false & (out | kept_false))
 
 
-def _surface_to_mesh(fld, meshes: _Meshes, band: Band, result, s_lattice: float, tol: float):
-    """Per band cube near the meshes, a bound of the distance from T's surface points in it to R's
-    surface; the bound elsewhere (``s_lattice`` or 0); the cubes near the meshes."""
-    c = band.centres()
-    r = 0.5 * math.sqrt(3.0) * band.h
+def _surface_to_mesh(lat: _Lattices, meshes: _Meshes, result, tol: float):
+    """A bound of the distance from T's surface points in the band cubes near the meshes or near
+    another lattice's band to R's surface; the largest bound ``s_g`` of the lattices with cubes
+    elsewhere (0: none); the cubes near."""
     surface = _Index(result, tol)
-    near = ~meshes.farther(c, r + s_lattice)
-    plain = bool((~near).any())
-    worst = 0.0
-    cubes, radius, side = c[near], r, band.h
-    for depth in range(CUBE_DEPTH + 1):
-        if not len(cubes):
-            break
-        free = _constant(fld, meshes, cubes, radius)
-        d = surface.distances(cubes)
-        goal = tol if depth == CUBE_DEPTH else COVER_SHARE * tol
-        covered = ~free & (d + radius + SLACK <= goal)
-        if covered.any():
-            worst = max(worst, float((d[covered] + radius).max()) + SLACK)
-        rest = cubes[~free & ~covered]
-        if depth == CUBE_DEPTH and len(rest):
-            return math.inf, plain, int(near.sum())
-        offs = (np.stack(np.meshgrid(*[np.arange(2)] * 3, indexing="ij"), -1).reshape(-1, 3) - 0.5) * 0.5 * side
-        cubes = (rest[:, None, :] + offs[None]).reshape(-1, 3)
-        radius, side = 0.5 * radius, 0.5 * side
-    return worst, plain, int(near.sum())
+    worst, plain, n_near = 0.0, 0.0, 0
+    offs = np.stack(np.meshgrid(*[np.arange(2)] * 3, indexing="ij"), -1).reshape(-1, 3) - 0.5
+    for g, band in enumerate(lat.bands):
+        c = band.centres()
+        r = 0.5 * math.sqrt(3.0) * band.h
+        reach = r + float(lat.s[g])
+        near = ~meshes.farther(c, reach)
+        if len(lat) > 1:
+            near |= lat.others_meet(g, c - reach, c + reach)
+        if (~near).any():
+            plain = max(plain, float(lat.s[g]))
+        n_near += int(near.sum())
+        cubes, radius, side = c[near], r, band.h
+        for depth in range(CUBE_DEPTH + 1):
+            if not len(cubes):
+                break
+            free = _constant(lat, meshes, cubes, radius)
+            d = surface.distances(cubes)
+            goal = tol if depth == CUBE_DEPTH else COVER_SHARE * tol
+            covered = ~free & (d + radius + SLACK <= goal)
+            if covered.any():
+                worst = max(worst, float((d[covered] + radius).max()) + SLACK)
+            rest = cubes[~free & ~covered]
+            if depth == CUBE_DEPTH and len(rest):
+                return math.inf, plain, n_near
+            cubes = (rest[:, None, :] + 0.5 * side * offs[None]).reshape(-1, 3)
+            radius, side = 0.5 * radius, 0.5 * side
+    return worst, plain, n_near
 
 
-def _certify(fld, meshes: _Meshes, band: Band, lattice: SurfaceMesh, v, f, tol: float):
+def _certify(lat: _Lattices, meshes: _Meshes, v, f, tol: float):
     """R = (v, f) against T: the bounds mesh to surface and surface to mesh, and counts."""
-    meshes.index(2.0 * tol + math.sqrt(3.0) * band.h)
-    d_tri, probed = _mesh_to_surface(fld, meshes, band, v, f, lattice.mesh_to_surface, tol)
+    meshes.index(2.0 * tol + math.sqrt(3.0) * lat.h)
+    d_tri, probed = _mesh_to_surface(lat, meshes, v, f, tol)
     a = float(d_tri.max()) if len(d_tri) else 0.0
     if not a <= tol:
         return a, math.inf, {"probed_pieces": probed, "cubes_near_meshes": 0}
-    s_near, plain, n_near = _surface_to_mesh(fld, meshes, band, (v, f), lattice.surface_to_mesh, tol)
-    s = max(s_near, lattice.surface_to_mesh if plain else 0.0)
-    return a, s, {"probed_pieces": probed, "cubes_near_meshes": n_near}
+    s_near, s_plain, n_near = _surface_to_mesh(lat, meshes, (v, f), tol)
+    return a, max(s_near, s_plain), {"probed_pieces": probed, "cubes_near_meshes": n_near}
 
 
-def _compact(fld, meshes: _Meshes, uniform: SurfaceMesh, tol: float) -> SurfaceMesh | None:
+def _compact(lat: _Lattices, meshes: _Meshes, uniform: SurfaceMesh, tol: float) -> SurfaceMesh | None:
     """``uniform`` (R, certified) simplified and certified again (:func:`slicer.meshing.compact.simplified`).
 
     Mesh to surface, per triangle of the simplified mesh: farther than ``ρ + tol`` from every mesh,
-    where the lattice is kept and no solid fills, ``T = S`` within the tolerance, so the
-    triangle's certificate on the field holds (as a lattice's); any other triangle, by its
+    where the lattice is kept and no solid fills, and (several lattices) from the bands of all
+    lattices but one, ``g``, outside the others' solids, ``T = S_g`` within the tolerance, so the
+    triangle's certificate on ``g``'s field holds (as a lattice's); any other triangle, by its
     distance back to ``uniform`` plus ``uniform``'s bound (the Hausdorff distance is a metric).
     """
     room = tol - uniform.mesh_to_surface
@@ -469,11 +676,22 @@ def _compact(fld, meshes: _Meshes, uniform: SurfaceMesh, tol: float) -> SurfaceM
         if plain.any():
             known, kept, filled = meshes.decided(cen[plain])
             plain[plain] = known & kept & ~filled
+        g = np.zeros(len(f1), np.int64)
+        if len(lat) > 1 and plain.any():
+            g[plain] = lat.owner(tri[plain].min(axis=1) - tol, tri[plain].max(axis=1) + tol)
+            plain &= g >= 0
+            for k in range(len(lat)):
+                mine = np.flatnonzero(plain & (g == k))
+                plain[mine] = lat.outside_others(k, cen[mine])
         out = np.zeros(len(f1))
-        if plain.any():
-            out[plain], n_pieces = triangle_bounds(fld, v1, f1[plain], tol, int(PIECES * len(uniform.faces)))
-            row["certified_pieces"] = int(n_pieces)
-            plain[plain] = np.isfinite(out[plain])
+        row["certified_pieces"] = 0
+        for k in range(len(lat)):
+            mine = np.flatnonzero(plain & (g == k))
+            if len(mine):
+                out[mine], n_pieces = triangle_bounds(lat.fields[k], v1, f1[mine], tol,
+                                                      int(PIECES * len(uniform.faces)))
+                row["certified_pieces"] += int(n_pieces)
+                plain[mine] = np.isfinite(out[mine])
         rest = ~plain
         if rest.any():
             d10 = mesh_to_mesh(v1, f1[rest], uniform.vertices, uniform.faces, room, room)
@@ -485,37 +703,41 @@ def _compact(fld, meshes: _Meshes, uniform: SurfaceMesh, tol: float) -> SurfaceM
 
 
 def mesh_part(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attempts: int = ATTEMPTS,
-              compact: bool = True) -> SurfaceMesh:
+              compact: bool = True, blend: str = "sum") -> SurfaceMesh:
     """Mesh a part's solid, lattice and meshes together, with a certified Hausdorff bound.
 
     Parameters
     ----------
-    scene : Skeleton or Part
-        A lattice (blend ``sum``, degree >= 4) with solid and clipping meshes, or solid
-        meshes alone; without meshes this is :func:`slicer.meshing.surface.mesh_scene`.
+    scene : Skeleton, GroupedSkeleton or Part
+        A lattice (degree >= 4) with solid and clipping meshes, or solid meshes alone; a
+        supported scene (the model's struts, supports and pad unite); without meshes, a
+        summed lattice is :func:`slicer.meshing.surface.mesh_scene`'s.
     tol : float, mm
         The two-sided Hausdorff distance to certify between the mesh's surface and the
         printed solid's ``((S ∩ CI) − CO) ∪ M`` (:mod:`slicer.parts.part`).
     cell : float, mm, optional
-        The lattice's first cube side (:func:`slicer.meshing.surface.mesh_scene`).
+        The lattices' first cube side (:func:`slicer.meshing.surface.mesh_scene`).
     attempts : int
-        The lattice's attempts per round.
+        The lattices' attempts per round.
     compact : bool
         Simplify the certified mesh and certify it again.
+    blend : {"sum", "union"}
+        The model's blend (:mod:`slicer.model.blend`); with ``union`` every strut's own
+        solid unites (:mod:`slicer.meshing.unions`).
 
     Returns
     -------
     SurfaceMesh
         Closed, consistently wound, manifold; ``bound`` certified (the last round's
-        when none certifies). ``stats`` adds ``rounds``, ``probed_pieces`` and
-        ``cubes_near_meshes``.
+        when none certifies). ``stats`` adds ``rounds``, ``lattices`` (the summed
+        lattices united), ``probed_pieces`` and ``cubes_near_meshes``.
 
     Raises
     ------
     SceneError
         As :func:`slicer.meshing.surface.lattice_of` for the lattice.
     OptionError
-        As :func:`slicer.meshing.surface.mesh_scene`.
+        As :func:`slicer.meshing.surface.mesh_scene`, or an unknown blend.
 
     Examples
     --------
@@ -533,36 +755,39 @@ def mesh_part(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attemp
     part = as_part(scene)
     tol = positive_number(tol, "tol")
     attempts = integer(attempts, "attempts", lo=1)
-    if not part.meshes:
+    blend = check_blend(blend, "blend")
+    skel = part.skeleton if part.skeleton is not None and part.skeleton.n_segments else None
+    unites = skel is not None and (bool(getattr(skel, "groups", ())) or blend == "union")
+    if not part.meshes and not unites:
         return mesh_scene(part, tol=tol, cell=cell, attempts=attempts, compact=compact)
     start = time.perf_counter()
     meshes = _Meshes(part)
-    if part.skeleton is None or part.skeleton.n_segments == 0:
-        v, f = _combine(None, meshes)
+    if skel is None:
+        v, f = _combine([], meshes)
         out = SurfaceMesh(v, f, tol, SLACK, SLACK, SLACK, math.nan, {"rounds": 0, "triangles": int(len(f))})
     else:
-        fld = MeshField(lattice_of(part.skeleton))
+        lat = _Lattices(united_lattices(skel, blend))
         tol_lattice = tol
         best = None
         for rnd in range(1, ROUNDS + 1):
-            lattice, band = uniform_mesh(fld, tol_lattice, cell if rnd == 1 else None, attempts)
-            stats = dict(lattice.stats, rounds=rnd, lattice_tol=tol_lattice, lattice_bound=lattice.bound)
-            v, f = _combine((lattice.vertices, lattice.faces), meshes)
-            a, s, more = _certify(fld, meshes, band, lattice, v, f, tol)
+            lat.mesh(tol_lattice, cell if rnd == 1 else None, attempts)
+            stats = dict(lat.stats(), rounds=rnd, lattice_tol=tol_lattice)
+            v, f = _combine(lat.meshes, meshes)
+            a, s, more = _certify(lat, meshes, v, f, tol)
             stats.update(more, triangles=int(len(f)))
-            out = SurfaceMesh(v, f, tol, max(a, s), a, s, lattice.cell, stats)
+            out = SurfaceMesh(v, f, tol, max(a, s), a, s, min(m.cell for m in lat.meshes), stats)
             if best is None or out.bound < best.bound:
                 best = out
             # certified with room to simplify, or a finer lattice would fail as this one did
-            if best.bound <= ROOM * tol or not lattice.certified or (best.certified and not compact):
+            if best.bound <= ROOM * tol or not lat.certified or (best.certified and not compact):
                 break
             tol_lattice *= 0.5
         out = best
         if not len(out.faces):
             raise SceneError("nothing to mesh: the part's clipping meshes leave none of its lattice (to within "
                              f"{out.bound:.3g} mm) and it has no solid meshes", part.source)
-    if compact and out.certified and part.skeleton is not None:
-        out = _compact(fld, meshes, out, tol) or out
+        if compact and out.certified:
+            out = _compact(lat, meshes, out, tol) or out
     out.stats["seconds"] = time.perf_counter() - start
     return out
 

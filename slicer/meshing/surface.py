@@ -44,8 +44,9 @@
    is made again.
 
 Everything is float64; the field's bounds carry the relative slack of
-:mod:`slicer._kernels.contours.cellbounds`. Degree-2 kernels (no curvature bound),
-the union blend and parts with meshes are refused.
+:mod:`slicer._kernels.contours.cellbounds`. Degree-2 kernels (no curvature bound)
+are refused; unions (supports, the union blend) and parts with meshes are
+:func:`slicer.meshing.mesh_part`'s.
 """
 from __future__ import annotations
 
@@ -113,7 +114,7 @@ def lattice_of(scene) -> Skeleton:
         raise SceneError("nothing to mesh: the scene has no lattice")
     if getattr(scene, "groups", ()):
         raise SceneError(f"the scene's struts fall in {len(scene.groups)} groups that unite (supports and a pad); "
-                         f"meshing a union of groups is not supported yet (docs/mesh.md, 'Limits')", scene.source)
+                         f"mesh_scene meshes one summed lattice: use slicer.meshing.mesh_part", scene.source)
     if scene.degree < 4:
         raise SceneError(f"kernel degree {scene.degree}: the field's curvature is unbounded at the supports' "
                          f"edge, so no mesh can be certified; use degree 4 or more", scene.source)

@@ -5,7 +5,6 @@ import click
 
 from slicer._kernels.runtime.launch import numba_threads
 from slicer.atomic import check_destination
-from slicer.model.blend import require_sum
 from slicer.errors import OutputError
 from slicer.job.run import check_not_input
 from slicer.meshing.beams3mf import write_beam_lattice
@@ -38,13 +37,13 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
     """Mesh SCENE's surface with a certified Hausdorff bound, or write its skeleton as a 3MF beam lattice.
 
     The surface mesh is closed, consistently wound and manifold: the lattice's
-    surface, clipped by the part's clipping meshes and united with its solid
-    meshes. The command prints the bound it certified (exit status 1 if it
-    could not certify --tol).
+    surface (a supported scene's model, supports and pad united; with --blend
+    union every strut's own solid), clipped by the part's clipping meshes and
+    united with its solid meshes. The command prints the bound it certified
+    (exit status 1 if it could not certify --tol).
 
     Example: skelslice mesh octet.json -o octet.stl --tol 0.01
     """
-    require_sum(blend, "meshing")
     check_not_input(out, *part_inputs(scene, {"solids": solids, "clips_inside": clips_inside,
                                               "clips_outside": clips_outside}))
     part = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet)
@@ -61,7 +60,7 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
     mesh_format(out)
     check_destination(out, force)
     with numba_threads(threads):
-        m = mesh_part(part, tol=tol, compact=not uniform)
+        m = mesh_part(part, tol=tol, compact=not uniform, blend=blend)
     write_mesh(m.vertices, m.faces, out, force=force)
     st = m.stats
     if not quiet:
@@ -69,11 +68,20 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
                    f"{m.bound:.4g} mm (mesh to surface {m.mesh_to_surface:.4g}, surface to mesh "
                    f"{m.surface_to_mesh:.4g}; tolerance {tol:g})"
                    + (f", cubes of {m.cell:.4g} mm, {st['attempts']} attempt(s)" if "attempts" in st else "")
+                   + (f", {st['lattices']} summed lattices united" if st.get("lattices", 1) > 1 else "")
                    + (f", {st['cubes_near_meshes']:,} cubes and {st['probed_pieces']:,} triangle pieces checked "
-                      f"against the part's meshes" if "probed_pieces" in st else "")
+                      f"where {_meeting(part, st)}" if "probed_pieces" in st else "")
                    + (f", simplified from {st['uniform_triangles']:,} uniform triangles"
                       if "uniform_triangles" in st else "") + f", {st['seconds']:.1f} s")
     if not m.certified:
         click.echo(f"error: the bound {m.bound:.4g} mm is above --tol {tol:g} mm after {st['attempts']} attempts; "
                    f"the mesh is written but not certified", err=True)
         raise SystemExit(1)
+
+
+def _meeting(part, stats) -> str:
+    """Where the checked pieces are: near the part's meshes, where the united lattices meet, or both."""
+    united = stats.get("lattices", 1) > 1
+    if part.meshes:
+        return "the united lattices and the part's meshes meet" if united else "the lattice meets the part's meshes"
+    return "the united lattices meet"
