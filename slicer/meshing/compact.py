@@ -118,12 +118,12 @@ def triangle_bounds(fld, vertices: np.ndarray, faces: np.ndarray, tol: float, li
     return out, n_pieces
 
 
-def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface):
+def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface, target: float | None = None):
     """The loop of :func:`compact` (and of a part's, :mod:`slicer.meshing.composite`): ``uniform`` simplified to
     fractions of ``budget``; surface to mesh by the distances from ``uniform`` to the result
-    (pieces split while above ``reach − uniform.surface_to_mesh``, nothing farther than ``reach``
-    found); mesh to surface by ``mesh_to_surface(v1, f1, row)`` (a bound, mm; ``row`` takes its
-    counts)."""
+    (pieces split while above ``target``, by default ``reach − uniform.surface_to_mesh``; nothing
+    farther than ``reach`` found); mesh to surface by ``mesh_to_surface(v1, f1, row)`` (a bound,
+    mm; ``row`` takes its counts)."""
     if not budget > 0.0 or not len(uniform.faces):
         return None
     tried = []
@@ -133,8 +133,8 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
         tried.append(row)
         if len(f1) > GAIN * len(uniform.faces) or not len(f1):
             break
-        d01 = float(mesh_to_mesh(uniform.vertices, uniform.faces, v1, f1, reach - uniform.surface_to_mesh,
-                                 reach).max())
+        d01 = float(mesh_to_mesh(uniform.vertices, uniform.faces, v1, f1,
+                                 reach - uniform.surface_to_mesh if target is None else target, reach).max())
         b1 = uniform.surface_to_mesh + d01
         row["uniform_to_compact"] = d01
         if not b1 <= tol:

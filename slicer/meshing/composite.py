@@ -37,8 +37,14 @@ clip-outside and solid meshes. :func:`mesh_part`
    The bound is the largest of these distances, plus :data:`SLACK` for the rounding of
    the booleans' new vertices.
 4. simplifies ``R`` as the lattice's mesh is (:mod:`slicer.meshing.compact`) and
-   certifies the simplified mesh ``R'`` by the distances from ``R`` to ``R'`` and back
-   (the Hausdorff distance is a metric).
+   certifies the simplified mesh ``R'``: surface to mesh by the distances from ``R`` to ``R'``
+   (the Hausdorff distance is a metric); mesh to surface on the field where ``T`` is one
+   lattice's solid, else by the distance back to ``R``, else by probes as above.
+
+``S`` may be a union of summed lattices (a supported scene, the union blend:
+:mod:`slicer.meshing.unions`): each is meshed with its band, ``L`` is their union, and the
+rules above hold with "the meshes" read as "the meshes and the other lattices' bands"
+(docs/mesh.md, "Unions").
 
 When the bound exceeds the tolerance, the lattice is meshed again at half its
 tolerance (smaller cubes, a closer surface), up to :data:`ROUNDS` times.
@@ -64,6 +70,9 @@ from slicer.meshing.unions import united_lattices
 from slicer.model.blend import check_blend
 from slicer.parts.part import Part, as_part
 
+#: the mesh-to-mesh distances of the compaction are refined until each piece's bound is within this
+#: share of the room the uniform mesh's bound leaves
+DISTANCE_SHARE = 0.5
 #: lattice meshes tried, each at half the tolerance of the one before
 ROUNDS = 3
 #: ... while the certified bound is above this share of the tolerance (the rest is the simplification's)
@@ -534,15 +543,18 @@ def _directions(n: int) -> np.ndarray:
 _DIRECTIONS = _directions(230)
 
 
-def _mesh_to_surface(lat: _Lattices, meshes: _Meshes, v: np.ndarray, f: np.ndarray, tol: float):
-    """Per triangle of R, a bound of its points' distance to T's surface, and the pieces probed."""
+def _mesh_to_surface(lat: _Lattices, meshes: _Meshes, v: np.ndarray, f: np.ndarray, tol: float,
+                     of_lattices: bool = True):
+    """Per triangle of R, a bound of its points' distance to T's surface, and the pieces probed.
+    ``of_lattices=False``: triangles of another mesh (the simplified one), on no lattice's mesh
+    and not R's off the bands, certified by probes alone."""
     tri = v[f]
     cen = tri.mean(axis=1)
     rho = np.linalg.norm(tri - cen[:, None], axis=2).max(axis=1)
     out = np.zeros(len(f))
     one = len(lat) == 1
     # one lattice: a triangle far from the meshes is on L's surface (several: see the loop)
-    far = meshes.farther(cen, rho + lat.a[0]) if one else np.zeros(len(f), bool)
+    far = meshes.farther(cen, rho + lat.a[0]) if one and of_lattices else np.zeros(len(f), bool)
     out[far] = lat.a[0]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     length = np.linalg.norm(normal, axis=1)
@@ -559,8 +571,11 @@ def _mesh_to_surface(lat: _Lattices, meshes: _Meshes, v: np.ndarray, f: np.ndarr
         lo, hi = pieces.min(axis=1), pieces.max(axis=1)
         # off the bands R = T; farther than a_g from the meshes and from the other lattices' bands,
         # a piece is on L_g's surface
-        meets = lat.meets(lo, hi)
-        g = np.zeros(len(pieces), np.int64) if one else lat.owner(lo - a_max, hi + a_max)
+        if not of_lattices:
+            meets, g = np.ones(len(pieces), bool), np.full(len(pieces), -1, np.int64)
+        else:
+            meets = lat.meets(lo, hi)
+            g = np.zeros(len(pieces), np.int64) if one else lat.owner(lo - a_max, hi + a_max)
         out[owner[~meets]] = np.maximum(out[owner[~meets]], SLACK)
         a_g = lat.a[np.maximum(g, 0)]
         far = meets & (g >= 0) & meshes.farther(c, r + a_g)
@@ -576,7 +591,7 @@ def _mesh_to_surface(lat: _Lattices, meshes: _Meshes, v: np.ndarray, f: np.ndarr
             done = (d <= GOAL_SHARE * tol) | (r[small] <= FINEST_SHARE * tol) | np.isinf(d)
             np.maximum.at(out, owner[small][done], d[done])
             if np.isinf(d).any():       # not certified: the rest cannot change that
-                return out, probed
+                return np.full(len(f), np.inf), probed
             small[small] = done
         pieces, owner = pieces[~small], owner[~small]
         if depth == PIECE_DEPTH:
@@ -648,6 +663,8 @@ def _surface_to_mesh(lat: _Lattices, meshes: _Meshes, result, tol: float):
 
 def _certify(lat: _Lattices, meshes: _Meshes, v, f, tol: float):
     """R = (v, f) against T: the bounds mesh to surface and surface to mesh, and counts."""
+    if not (np.isfinite(lat.a).all() and np.isfinite(lat.s).all()):      # a lattice not certified at all
+        return math.inf, math.inf, {"probed_pieces": 0, "cubes_near_meshes": 0}
     meshes.index(2.0 * tol + math.sqrt(3.0) * lat.h)
     d_tri, probed = _mesh_to_surface(lat, meshes, v, f, tol)
     a = float(d_tri.max()) if len(d_tri) else 0.0
@@ -694,12 +711,19 @@ def _compact(lat: _Lattices, meshes: _Meshes, uniform: SurfaceMesh, tol: float) 
                 plain[mine] = np.isfinite(out[mine])
         rest = ~plain
         if rest.any():
-            d10 = mesh_to_mesh(v1, f1[rest], uniform.vertices, uniform.faces, room, room)
+            d10 = mesh_to_mesh(v1, f1[rest], uniform.vertices, uniform.faces, DISTANCE_SHARE * room, room)
             out[rest] = uniform.mesh_to_surface + d10
+        # what the distance back leaves above the tolerance (large triangles on a part's mesh), by probes
+        over = np.flatnonzero(rest & ~(out <= tol))
+        if len(over):
+            d, n_probed = _mesh_to_surface(lat, meshes, v1, f1[over], tol, of_lattices=False)
+            out[over] = np.minimum(out[over], d)
+            row["probed_pieces"] = n_probed
         row["by_distance"] = int(rest.sum())
         return float(out.max()) if len(out) else 0.0
 
-    return simplified(uniform, tol, tol - uniform.bound, tol, mesh_to_surface)
+    return simplified(uniform, tol, tol - uniform.bound, tol, mesh_to_surface,
+                      target=DISTANCE_SHARE * (tol - uniform.surface_to_mesh))
 
 
 def mesh_part(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attempts: int = ATTEMPTS,
