@@ -272,14 +272,14 @@ def canonical_faces(faces):
 
 
 def test_chunks_change_nothing(monkeypatch):
-    """The band is settled, meshed and certified in chunks; chunks of 37 cubes (so that
+    """The band is settled, meshed and certified in chunks; chunks of 101 cubes (so that
     chunk borders cut the surface everywhere) give the same vertices, the same faces and
     the same bound as the default chunks."""
     skel = struts()
     a = mesh_scene(skel, tol=0.1, compact=False)
-    monkeypatch.setattr(mesh_surface, "CHUNK", 37)
+    monkeypatch.setattr(mesh_surface, "CHUNK", 101)
     b = mesh_scene(skel, tol=0.1, compact=False)
-    assert a.stats["band_cubes"] > 50 * 37
+    assert a.stats["band_cubes"] > 50 * 101
     assert np.array_equal(a.vertices, b.vertices)
     assert np.array_equal(canonical_faces(a.faces), canonical_faces(b.faces))
     assert a.bound == b.bound and a.stats["triangles"] == b.stats["triangles"]

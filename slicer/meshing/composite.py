@@ -110,6 +110,7 @@ MAX_LATTICES = 64
 #: the side of :class:`_Occupancy`'s cells, in the largest band cube side
 OCCUPANCY_CELLS = 2
 _CELL_RANGE = 1 << 21
+_CELL_SLACK = 1e-7
 _LEVELS = 21
 _QUERY_ROWS = 200_000
 _STEPS = np.stack(np.meshgrid(*[np.arange(3)] * 3, indexing="ij"), -1).reshape(-1, 3)
@@ -323,14 +324,14 @@ class _Occupancy:
     """
 
     def __init__(self, bands, side: float):
-        self.side = float(side)
+        self.side = float(side)         # more than the bands' cube sides, so a cube meets at most 2 cells per axis
         self.origin = np.min([b.grid.origin for b in bands], axis=0) - self.side
         keys, bits = [], []
         corners = np.stack(np.meshgrid(*[np.arange(2)] * 3, indexing="ij"), -1).reshape(-1, 3)
         for g, band in enumerate(bands):
             lo = band.grid.origin + band.cubes * band.h
-            a = self._cells(lo)
-            b = self._cells(lo + band.h)           # at most one more per axis (h <= side)
+            a = self._cells(lo, -_CELL_SLACK)
+            b = self._cells(lo + band.h, _CELL_SLACK)       # at most one more per axis (h < side)
             k = np.unique(np.concatenate([self._key(a + c * (b - a)) for c in corners]))
             keys.append(k)
             bits.append(np.full(len(k), np.uint64(1 << g), np.uint64))
@@ -345,8 +346,9 @@ class _Occupancy:
             bits = merged
             self.levels.append((keys, bits))
 
-    def _cells(self, p: np.ndarray) -> np.ndarray:
-        return np.clip(np.floor((p - self.origin) / self.side), 0, _CELL_RANGE - 1).astype(np.int64)
+    def _cells(self, p: np.ndarray, slack: float = 0.0) -> np.ndarray:
+        """The cells holding points (n, 3), mm, moved by ``slack`` cells (rounding, outward)."""
+        return np.clip(np.floor((p - self.origin) / self.side + slack), 0, _CELL_RANGE - 1).astype(np.int64)
 
     @staticmethod
     def _key(idx: np.ndarray) -> np.ndarray:
@@ -360,7 +362,8 @@ class _Occupancy:
         """(n,) uint64: the bits of each box ``[lo, hi]`` ((n, 3) each, mm)."""
         out = np.zeros(len(lo), np.uint64)
         for s in range(0, len(lo), _QUERY_ROWS):
-            out[s:s + _QUERY_ROWS] = self._masks(self._cells(lo[s:s + _QUERY_ROWS]), self._cells(hi[s:s + _QUERY_ROWS]))
+            out[s:s + _QUERY_ROWS] = self._masks(self._cells(lo[s:s + _QUERY_ROWS], -_CELL_SLACK),
+                                                 self._cells(hi[s:s + _QUERY_ROWS], _CELL_SLACK))
         return out
 
     def _masks(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
