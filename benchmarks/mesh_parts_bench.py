@@ -10,6 +10,9 @@ Parts of the sample cubic_2x2x2 (10 mm, struts of 0.5 mm radius) at ``--tol 0.05
 * ``plate``: united with a solid plate 12 x 12 x 1 mm under it, overlapping the bottom nodes;
 * ``hole``: a square hole (clip-outside box 3 x 3 x 14 mm) through its middle.
 
+With ``--supported``, also cubic_2x2x2 with the supports and pad ``skelslice supports`` adds
+(default settings, a 0.05 mm grid) at ``--tol 0.2``, uniform (``--uniform``) and compact.
+
 Each row is one method in the same run: ``lattice`` is ``mesh_scene`` of the lattice alone
 (the work a part cannot skip), ``part`` is ``mesh_part`` (the lattice's mesh, the booleans and
 the part's certificate, then the simplification). Seconds are medians of ``--repeat`` runs
@@ -29,9 +32,12 @@ from sample_lattices import load_sample
 from slicer.meshing import mesh_part, mesh_scene
 from slicer.parts.meshes import make_mesh
 from slicer.parts.part import Part, PartMesh
+from slicer.supports.build import SupportSettings, supported_scene
 from validation import machine
 
 TOL = 0.05
+#: the supported scene's tolerance
+SUPPORTED_TOL = 0.2
 
 
 def _mesh(m, name):
@@ -62,7 +68,16 @@ def _timed(fn, repeat):
     return out, statistics.median(times)
 
 
-def run(repeat):
+def _row(part, method, m, sec):
+    t = m.trimesh()
+    return {"part": part, "method": method, "triangles": int(len(m.faces)), "seconds": round(sec, 2),
+            "bound": m.bound, "certified": m.certified, "watertight": bool(t.is_watertight),
+            "rounds": m.stats.get("rounds"), "lattices": m.stats.get("lattices"),
+            "cubes_near_meshes": m.stats.get("cubes_near_meshes"), "probed_pieces": m.stats.get("probed_pieces"),
+            "uniform_triangles": m.stats.get("uniform_triangles")}
+
+
+def run(repeat, supported=False):
     skel, cases = parts()
     mesh_scene(skel.__class__([[0, 0, 0], [0, 0, 2]], [[0, 1]], [[0.5, 0.5]]), tol=0.1)      # warm the kernels
     rows = []
@@ -72,13 +87,14 @@ def run(repeat):
     print(rows[-1], file=sys.stderr, flush=True)
     for name, meshes in cases:
         m, sec = _timed(lambda: mesh_part(Part(skel, meshes), tol=TOL), repeat)
-        t = m.trimesh()
-        rows.append({"part": name, "method": "part", "triangles": int(len(m.faces)), "seconds": round(sec, 2),
-                     "bound": m.bound, "certified": m.certified, "watertight": bool(t.is_watertight),
-                     "rounds": m.stats.get("rounds"), "cubes_near_meshes": m.stats.get("cubes_near_meshes"),
-                     "probed_pieces": m.stats.get("probed_pieces"),
-                     "uniform_triangles": m.stats.get("uniform_triangles")})
+        rows.append(_row(name, "part", m, sec))
         print(rows[-1], file=sys.stderr, flush=True)
+    if supported:
+        scene, _ = supported_scene(skel, SupportSettings(pixel_size=0.05, layer_height=0.05))
+        for method, compact in (("supported, uniform", False), ("supported", True)):
+            m, sec = _timed(lambda: mesh_part(scene, tol=SUPPORTED_TOL, compact=compact), repeat)
+            rows.append(_row(f"supports and pad (tol {SUPPORTED_TOL:g})", method, m, sec))
+            print(rows[-1], file=sys.stderr, flush=True)
     return rows
 
 
@@ -95,8 +111,9 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=1, help="Runs per method (the median is reported).")
     ap.add_argument("--json", default=None, help="Also write the rows, command and machine here.")
+    ap.add_argument("--supported", action="store_true", help="Also the supported cubic_2x2x2 (about 8 minutes).")
     a = ap.parse_args(argv)
-    rows = run(a.repeat)
+    rows = run(a.repeat, a.supported)
     res = {"benchmark": "mesh_parts_bench", "tol": TOL,
            "command": machine.command_line("python benchmarks/mesh_parts_bench.py", argv),
            "machine": machine.describe(), "rows": rows}

@@ -36,6 +36,7 @@ from slicer.meshing.unions import disjoint_classes
 from slicer.model.field import evaluate
 from slicer.parts.meshes import make_mesh
 from slicer.parts.part import Part, PartMesh
+from slicer.scene.write import write_scene
 from slicer.supports.build import write_supported
 from slicer.supports.groups import GroupedSkeleton
 
@@ -121,6 +122,49 @@ def test_winding_numbers():
     v2, f2 = _box((0.5, 0.5, 0.5), (0.5, 0, 0))
     both = composite._joined([(v, f), (v2, f2)])
     assert math.isclose(winding_numbers(np.array([[0.5, 0, 0]]), *both)[0], 2.0, abs_tol=1e-9)
+
+
+def test_membership_shared_by_cells_is_each_points_own():
+    """A union of many triangles decides points far from its surface by their cells' centres
+    (composite._Meshes._members): the same answer as each point's own winding number, at
+    distances from 1e-6 mm to 1 mm on both sides of a polyhedral sphere."""
+    s3 = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    s3.apply_translation((0.2, -0.1, 0.3))
+    v, f = np.asarray(s3.vertices, np.float64), np.asarray(s3.faces, np.int64)
+    assert len(f) >= composite.MEMBER_FACES
+    meshes = composite._Meshes(_part(None, [("solid", (v, f))]))
+    meshes.index(0.3)
+    rng = np.random.default_rng(7)
+    on = v[f[rng.integers(0, len(f), 20000)]]
+    w = rng.dirichlet(np.ones(3), 20000)
+    base = (on * w[:, :, None]).sum(axis=1)                  # points of the surface
+    n = np.cross(on[:, 1] - on[:, 0], on[:, 2] - on[:, 0])
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    dist = np.exp(rng.uniform(math.log(1e-6), 0.0, 20000)) * rng.choice([-1.0, 1.0], 20000)
+    pts = base + dist[:, None] * n + rng.normal(scale=1e-3, size=(20000, 3))
+    known, inside = meshes.inside(pts)
+    assert known.mean() > 0.95
+    own = winding_numbers(pts[known], *meshes.roles["solid"]) > 0.5
+    assert np.array_equal(inside["solid"][known], own)
+    assert 0.3 < own.mean() < 0.7
+
+
+def test_united_lattice_meshes_keep_their_triangles():
+    """The booleans keep each lattice triangle's edges (composite._combine): two overlapping
+    struts along a grid axis (rows of a pad) have coplanar strips of triangles, which manifold3d
+    would merge into slivers millimetres long (each then certified piece by piece)."""
+    along_x = Skeleton([[-2.35, -2.7, -1.075], [7.35, -2.7, -1.075]], [[0, 1]], [[0.5, 0.5]])
+    lat = composite._Lattices([along_x, Skeleton([[-2.35, -2.25, -1.075], [7.35, -2.25, -1.075]], [[0, 1]],
+                                                 [[0.5, 0.5]])])
+    lat.mesh(0.2, None, 6)
+
+    def largest(v, f):
+        tri = v[f]
+        return np.linalg.norm(tri - tri.mean(axis=1)[:, None], axis=2).max()
+
+    v, f = composite._combine(lat.meshes, composite._Meshes(_part(along_x, [])))
+    assert largest(v, f) <= max(largest(m.vertices, m.faces) for m in lat.meshes) * (1 + 1e-9)
+    assert trimesh.Trimesh(v, f, process=False).is_watertight
 
 
 def test_cli_meshes_a_clipped_lattice_and_a_mesh_only_part(tmp_path):
@@ -212,3 +256,21 @@ def test_cli_meshes_a_supported_scene(tmp_path):
     assert t.is_watertight and t.is_winding_consistent
     # the supports reach below the model: the mesh spans the support strut's length
     assert t.bounds[0][2] < -3.0 and t.bounds[1][0] > 3.0
+
+
+def test_cli_meshes_a_lattice_with_supports_auto(tmp_path):
+    """``mesh --supports auto`` meshes the lattice with the supports ``skelslice supports``
+    would add (found on a 0.05 mm grid): a bar lifted 1 mm (from z 1.5 - 2.5 to 2.5 - 3.5) stands
+    on pillars reaching below it."""
+    scene = tmp_path / "bar.json"
+    write_scene(Skeleton([[0, 0, 2], [6, 0, 2]], [[0, 1]], [[0.5, 0.5]]), scene)
+    out = tmp_path / "m.stl"
+    args = ["mesh", str(scene), "-o", str(out), "--tol", "0.2", "--uniform", "--no-pad", "--elevation", "1"]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 2 and "needs --supports auto" in res.output and not out.exists()
+    res = CliRunner().invoke(main, [*args, "--supports", "auto"])
+    assert res.exit_code == 0, res.output
+    assert "summed lattices united" in res.output
+    t = trimesh.load(out, force="mesh")
+    assert t.is_watertight and t.is_winding_consistent
+    assert t.bounds[0][2] < 2.0 and t.bounds[1][2] > 3.4

@@ -9,7 +9,8 @@ clip-outside and solid meshes. :func:`mesh_part`
    ``L`` whose surface is within ``a`` of the surface ``F = 1`` (mesh to surface) and
    the surface within ``s`` of it, and whose solid equals ``S`` off the *band* ``U``,
    the closed cubes it could not settle;
-2. computes ``R = ((L ∩ CI) − CO) ∪ M`` with manifold3d's booleans;
+2. computes ``R = ((L ∩ CI) − CO) ∪ M`` with manifold3d's booleans (each triangle of
+   ``L`` a face of its own, so ``R``'s triangles are pieces of ``L``'s);
 3. certifies ``R`` against ``T``. Off ``U``, ``R = T`` (the same booleans of equal
    sets), so their surfaces agree there. Let ``P`` be the meshes' surfaces.
 
@@ -21,9 +22,9 @@ clip-outside and solid meshes. :func:`mesh_part`
    centroid ``c`` is certified within ``ρ + t`` when two of ``c``, ``c ± t n`` (``n``
    its normal) are on opposite sides of ``T`` (then ``T``'s surface meets the segment):
    membership of ``S`` by ``F`` at the point, of the meshes by winding numbers
-   (:func:`slicer._kernels.meshing.winding.winding_numbers`), both only where they
-   cannot be wrong (``|F − 1|`` above :data:`F_MARGIN`, the meshes farther than
-   :data:`NEAR`).
+   (:func:`slicer._kernels.meshing.winding.winding_numbers`; shared by the points of a
+   cell far enough from a large mesh), both only where they cannot be wrong (``|F − 1|``
+   above :data:`F_MARGIN`, the meshes farther than :data:`NEAR`).
 
    *Surface to mesh.* A point of ``T``'s surface off ``U`` is on ``R``'s. In a band
    cube (centre ``c``, circumradius ``r``) farther than ``r + s`` from ``P``, ``T = S``
@@ -79,8 +80,10 @@ ROUNDS = 3
 ROOM = 0.75
 #: a piece of a triangle is probed once its radius is at most this share of the tolerance
 PIECE_SHARE = 0.5
-#: a probed piece whose bound is above this share of the tolerance is halved again (room for the
-#: simplification) ...
+#: a wider piece, up to this share of the goal below, is probed along its normal first
+EARLY_SHARE = 0.875
+#: a probed piece of the mesh to simplify whose bound is above this share of the tolerance is halved
+#: again (room for the simplification) ...
 GOAL_SHARE = 0.5
 #: ... while its radius is above this share
 FINEST_SHARE = 1.0 / 32.0
@@ -99,6 +102,10 @@ CUBE_DEPTH = 4
 COVER_SHARE = 0.5
 #: mm: a point this near a mesh's surface is not decided inside or outside it
 NEAR = 1e-7
+#: mm: the smallest cell whose centre decides the membership of the points in it (:meth:`_Meshes.inside`)
+MEMBER_CELL = 1e-5
+#: ... for unions of at least this many triangles (fewer: each point's own winding number is cheaper)
+MEMBER_FACES = 256
 #: ``|F − 1|`` below this is not decided (the rounding of the field's point value is far less)
 F_MARGIN = 1e-10
 #: mm: the rounding of the booleans' new vertices (manifold3d computes them in float64)
@@ -148,11 +155,44 @@ class _Meshes:
         known = self.farther(points, NEAR)
         inside = {}
         for role, mesh in self.roles.items():
-            w = np.zeros(len(points))
+            inside[role] = np.zeros(len(points), bool)
             if known.any():
-                w[known] = winding_numbers(np.ascontiguousarray(points[known]), *mesh)
-            inside[role] = w > 0.5
+                inside[role][known] = self._members(role, np.ascontiguousarray(points[known]))
         return known, inside
+
+    def _members(self, role: str, points: np.ndarray) -> np.ndarray:
+        """Whether each point (none within :data:`NEAR` of the meshes) is in the role's union.
+
+        A union of at least :data:`MEMBER_FACES` triangles: a point proved farther than ``e``
+        from its surface has the membership of every point within ``e`` of it, so such points
+        share the winding number of their cell's centre (cells of a power of two times
+        :data:`MEMBER_CELL`, at most a quarter of the point's distance bound); the others get
+        their own."""
+        index, mesh = self.near_role[role], self.roles[role]
+        if len(mesh[1]) < MEMBER_FACES:
+            return winding_numbers(points, *mesh) > 0.5
+        d = index.distances(points)
+        level = np.floor(np.log2(np.maximum(np.minimum(d, index.reach), 1e-300) / (4.0 * MEMBER_CELL)))
+        shared = level >= 0
+        side = MEMBER_CELL * np.exp2(np.maximum(level, 0.0))
+        cell = np.floor(points / side[:, None])
+        centre = (cell + 0.5) * side[:, None]
+        shared &= index.farther(points, np.linalg.norm(points - centre, axis=1))
+        out = np.zeros(len(points), bool)
+        own = np.flatnonzero(~shared)
+        if len(own):
+            out[own] = winding_numbers(points[own], *mesh) > 0.5
+        rows = np.flatnonzero(shared)
+        if len(rows):
+            key = np.concatenate([level[rows, None], cell[rows]], axis=1)
+            order = np.lexsort(key.T[::-1])
+            new = np.ones(len(rows), bool)
+            new[1:] = (key[order[1:]] != key[order[:-1]]).any(axis=1)
+            inverse = np.empty(len(rows), np.int64)
+            inverse[order] = np.cumsum(new) - 1
+            w = winding_numbers(np.ascontiguousarray(centre[rows[order[new]]]), *mesh)
+            out[rows] = (w > 0.5)[inverse]
+        return out
 
     def decided(self, points: np.ndarray):
         """``(known, kept, filled)``: as :meth:`inside`, whether the lattice is kept at each point
@@ -386,9 +426,12 @@ class _Occupancy:
         return out
 
 
-def _manifold(vertices: np.ndarray, faces: np.ndarray, name: str) -> manifold3d.Manifold:
+def _manifold(vertices: np.ndarray, faces: np.ndarray, name: str, first_face: int | None = None) -> manifold3d.Manifold:
+    """A closed mesh as manifold3d's; ``first_face``: its triangles are faces of their own, numbered
+    from there (the booleans then keep every triangle's edges, not merging coplanar neighbours)."""
+    face_id = None if first_face is None else np.arange(first_face, first_face + len(faces), dtype=np.uint64)
     m = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.array(vertices, np.float64, order="C"),
-                                              tri_verts=np.array(faces, np.uint64, order="C")))
+                                              tri_verts=np.array(faces, np.uint64, order="C"), face_id=face_id))
     if m.status() != manifold3d.Error.NoError:
         raise SceneError(f"{name}: not a closed manifold mesh for the booleans ({m.status().name})")
     return m
@@ -417,7 +460,11 @@ def _combine(lattices, meshes: _Meshes):
     """
     out = None
     ms = meshes.manifolds
-    parts = [_manifold(m.vertices, m.faces, "the lattice's mesh") for m in lattices if len(m.faces)]
+    # each lattice triangle a face of its own: coplanar strips (a strut along a grid axis) would
+    # merge into slivers millimetres long, each certified piece by piece
+    first = np.cumsum([0] + [len(m.faces) for m in lattices])
+    parts = [_manifold(m.vertices, m.faces, "the lattice's mesh", int(k))
+             for m, k in zip(lattices, first) if len(m.faces)]
     if parts:
         out = parts[0] if len(parts) == 1 else manifold3d.Manifold.batch_boolean(parts, manifold3d.OpType.Add)
         if "clip-inside" in ms:
@@ -472,7 +519,8 @@ def _meets_band(band: Band, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarra
     return out
 
 
-def _probe(lat: _Lattices, meshes: _Meshes, centres: np.ndarray, normals: np.ndarray, reach: np.ndarray) -> np.ndarray:
+def _probe(lat: _Lattices, meshes: _Meshes, centres: np.ndarray, normals: np.ndarray, reach: np.ndarray,
+           along_normal_only: bool = False) -> np.ndarray:
     """Per point ``c`` with unit normal ``n``: a probe distance ``t <= reach`` such that two points
     of ``B(c, t)`` are on opposite sides of T, which puts T's surface in the ball (inf: none found).
 
@@ -482,7 +530,7 @@ def _probe(lat: _Lattices, meshes: _Meshes, centres: np.ndarray, normals: np.nda
     ``reach / 1e9`` (a thin wedge of T or of its complement, where two surfaces meet at a small
     angle); then, where that found nothing or only beyond ``DENSE_ABOVE reach`` (a surface nearly
     tangent to the normal), ``c + t u`` for u in the 256 directions of :func:`_directions` and the
-    first ``t``'s below the distance found.
+    first ``t``'s below the distance found. ``along_normal_only``: the first points only.
     """
     out = np.full(len(centres), np.inf)
     k0, m0 = _inside_solid(lat, meshes, centres)
@@ -502,6 +550,8 @@ def _probe(lat: _Lattices, meshes: _Meshes, centres: np.ndarray, normals: np.nda
             return out
         t = reach[todo] * 0.5 ** k
         todo = found(t, centres[todo, None, :] + t[:, None, None] * np.stack([normals[todo], -normals[todo]], 1))
+    if along_normal_only:
+        return out
     # along the normal, densely, where nothing was found or only far: the least t with both sides
     # among c, c ± t' n (t' <= t)
     todo = np.flatnonzero((reach > 0) & ~(out <= DENSE_ABOVE * reach))
@@ -547,10 +597,13 @@ _DIRECTIONS = _directions(230)
 
 
 def _mesh_to_surface(lat: _Lattices, meshes: _Meshes, v: np.ndarray, f: np.ndarray, tol: float,
-                     of_lattices: bool = True):
+                     of_lattices: bool = True, goal: float | None = None):
     """Per triangle of R, a bound of its points' distance to T's surface, and the pieces probed.
     ``of_lattices=False``: triangles of another mesh (the simplified one), on no lattice's mesh
-    and not R's off the bands, certified by probes alone."""
+    and not R's off the bands, certified by probes alone. ``goal`` (mm, default the tolerance):
+    a probed piece certified above it is halved again, down to ``FINEST_SHARE tol`` (a
+    tighter bound leaves the simplification room)."""
+    goal = tol if goal is None else goal
     tri = v[f]
     cen = tri.mean(axis=1)
     rho = np.linalg.norm(tri - cen[:, None], axis=2).max(axis=1)
@@ -585,17 +638,28 @@ def _mesh_to_surface(lat: _Lattices, meshes: _Meshes, v: np.ndarray, f: np.ndarr
         out[owner[far]] = np.maximum(out[owner[far]], a_g[far])
         keep = meets & ~far
         pieces, owner, c, r = pieces[keep], owner[keep], c[keep], r[keep]
+        # wider pieces, up to EARLY_SHARE of the goal, are tried along the normal first (a flat face
+        # is certified at once); those not certified within the goal are halved
+        early = (r > PIECE_SHARE * tol) & (r <= EARLY_SHARE * goal)
+        if early.any():
+            t = _probe(lat, meshes, c[early], normal[owner[early]], goal - r[early] - SLACK, along_normal_only=True)
+            d = r[early] + t + SLACK
+            probed += int(early.sum())
+            ok = d <= goal
+            np.maximum.at(out, owner[early][ok], d[ok])
+            early[early] = ok
         small = r <= PIECE_SHARE * tol
         if small.any():
             t = _probe(lat, meshes, c[small], normal[owner[small]], tol - r[small] - SLACK)
             d = r[small] + t + SLACK
             probed += int(small.sum())
-            # a piece certified above GOAL_SHARE tol is halved again, while it is wider than FINEST_SHARE tol
-            done = (d <= GOAL_SHARE * tol) | (r[small] <= FINEST_SHARE * tol) | np.isinf(d)
+            # a piece certified above the goal is halved again, while it is wider than FINEST_SHARE tol
+            done = (d <= goal) | (r[small] <= FINEST_SHARE * tol) | np.isinf(d)
             np.maximum.at(out, owner[small][done], d[done])
             if np.isinf(d).any():       # not certified: the rest cannot change that
                 return np.full(len(f), np.inf), probed
             small[small] = done
+        small |= early
         pieces, owner = pieces[~small], owner[~small]
         if depth == PIECE_DEPTH:
             out[owner] = np.inf
@@ -664,12 +728,14 @@ def _surface_to_mesh(lat: _Lattices, meshes: _Meshes, result, tol: float):
     return worst, plain, n_near
 
 
-def _certify(lat: _Lattices, meshes: _Meshes, v, f, tol: float):
-    """R = (v, f) against T: the bounds mesh to surface and surface to mesh, and counts."""
+def _certify(lat: _Lattices, meshes: _Meshes, v, f, tol: float, compact: bool = True):
+    """R = (v, f) against T: the bounds mesh to surface and surface to mesh, and counts
+    (``compact``: pieces are probed down to ``GOAL_SHARE tol`` where they can, room for the
+    simplification)."""
     if not (np.isfinite(lat.a).all() and np.isfinite(lat.s).all()):      # a lattice not certified at all
         return math.inf, math.inf, {"probed_pieces": 0, "cubes_near_meshes": 0}
     meshes.index(2.0 * tol + math.sqrt(3.0) * lat.h)
-    d_tri, probed = _mesh_to_surface(lat, meshes, v, f, tol)
+    d_tri, probed = _mesh_to_surface(lat, meshes, v, f, tol, goal=GOAL_SHARE * tol if compact else tol)
     a = float(d_tri.max()) if len(d_tri) else 0.0
     if not a <= tol:
         return a, math.inf, {"probed_pieces": probed, "cubes_near_meshes": 0}
@@ -800,7 +866,7 @@ def mesh_part(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attemp
             lat.mesh(tol_lattice, cell if rnd == 1 else None, attempts)
             stats = dict(lat.stats(), rounds=rnd, lattice_tol=tol_lattice)
             v, f = _combine(lat.meshes, meshes)
-            a, s, more = _certify(lat, meshes, v, f, tol)
+            a, s, more = _certify(lat, meshes, v, f, tol, compact)
             stats.update(more, triangles=int(len(f)))
             out = SurfaceMesh(v, f, tol, max(a, s), a, s, min(m.cell for m in lat.meshes), stats)
             if best is None or out.bound < best.bound:

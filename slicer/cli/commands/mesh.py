@@ -7,11 +7,14 @@ from slicer._kernels.runtime.launch import numba_threads
 from slicer.atomic import check_destination
 from slicer.errors import OutputError
 from slicer.job.run import check_not_input
+from slicer.job.spec import SliceJob
 from slicer.meshing.beams3mf import write_beam_lattice
 from slicer.meshing.output import mesh_format, write_mesh
 from slicer.meshing.composite import mesh_part
 from slicer.meshing.surface import DEFAULT_TOL
+from slicer.parts.part import as_part
 from slicer.cli.commands.options import blend_option, load_part_from, part_inputs, part_options, positive, radius_option
+from slicer.cli.commands.supports import add_supports, pop_support_options, supports_options
 
 
 @click.command("mesh")
@@ -30,15 +33,17 @@ from slicer.cli.commands.options import blend_option, load_part_from, part_input
 @radius_option
 @part_options
 @blend_option
+@supports_options
 @click.option("--force", is_flag=True, help="Replace an existing output (never the input).")
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing on success.")
 def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_inside, clips_outside, repair, blend, force,
-            quiet):
+            quiet, **support_kw):
     """Mesh SCENE's surface with a certified Hausdorff bound, or write its skeleton as a 3MF beam lattice.
 
     The surface mesh is closed, consistently wound and manifold: the lattice's
     surface (a supported scene's model, supports and pad united; with --blend
-    union every strut's own solid), clipped by the part's clipping meshes and
+    union every strut's own solid; --supports auto adds supports and a pad
+    first, found on a 0.05 mm grid), clipped by the part's clipping meshes and
     united with its solid meshes. The command prints the bound it certified
     (exit status 1 if it could not certify --tol).
 
@@ -47,6 +52,11 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
     check_not_input(out, *part_inputs(scene, {"solids": solids, "clips_inside": clips_inside,
                                               "clips_outside": clips_outside}))
     part = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet)
+    supports = pop_support_options(support_kw)
+    if supports["supports"] == "auto" or any(v is not None for k, v in supports.items() if k != "supports"):
+        lattice = part.skeleton if not part.has_meshes else part
+        with numba_threads(threads):
+            part = add_supports(lattice, supports, SliceJob.from_options(pixel_size=0.05), blend, quiet)
     if beams:
         if mesh_format(out) != "3mf":
             raise OutputError(f"{out}: --beams writes a 3MF beam lattice; name the output .3mf")
@@ -82,6 +92,6 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
 def _meeting(part, stats) -> str:
     """Where the checked pieces are: near the part's meshes, where the united lattices meet, or both."""
     united = stats.get("lattices", 1) > 1
-    if part.meshes:
+    if as_part(part).meshes:
         return "the united lattices and the part's meshes meet" if united else "the lattice meets the part's meshes"
     return "the united lattices meet"
