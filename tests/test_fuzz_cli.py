@@ -453,6 +453,6 @@ def test_fuzz_mesh(kind, st_data):
         beams = rarely(draw, 4)
         suffix = ".3mf" if beams and not hostile else draw(st.sampled_from(MESH_SUFFIX[:4] + (MESH_SUFFIX[4:]
                                                                                              if hostile else [])))
-        tol = text_number(0.05, 0.2, extra=["1e-6"]).pick(hostile)
+        tol = text_number(0.1, 0.3, extra=["1e-6"]).pick(hostile)
         args = ["mesh", str(scene), "-o", f"out{suffix}", "-q", "--tol", draw(tol)] + (["--beams"] if beams else [])
         _run(args + _options(draw, table, hostile), folder, allowed=(0, 1, 2), name="mesh")
