@@ -52,23 +52,22 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
     check_not_input(out, *part_inputs(scene, {"solids": solids, "clips_inside": clips_inside,
                                               "clips_outside": clips_outside}))
     part = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet)
+    if beams and mesh_format(out) != "3mf":
+        raise OutputError(f"{out}: --beams writes a 3MF beam lattice; name the output .3mf")
+    mesh_format(out)
+    check_destination(out, force)
     supports = pop_support_options(support_kw)
     if supports["supports"] == "auto" or any(v is not None for k, v in supports.items() if k != "supports"):
         lattice = part.skeleton if not part.has_meshes else part
         with numba_threads(threads):
             part = add_supports(lattice, supports, SliceJob.from_options(pixel_size=0.05), blend, quiet)
     if beams:
-        if mesh_format(out) != "3mf":
-            raise OutputError(f"{out}: --beams writes a 3MF beam lattice; name the output .3mf")
-        check_destination(out, force)
         st = write_beam_lattice(part, out, force=force)
         if not quiet:
             extra = (f", clipped {st['clipping']}" if st["clipping"] else "") + \
                     (f", {st['solids']} solid meshes" if st["solids"] else "")
             click.echo(f"beam lattice: {st['nodes']:,} nodes, {st['beams']:,} beams{extra} -> {out}")
         return
-    mesh_format(out)
-    check_destination(out, force)
     with numba_threads(threads):
         m = mesh_part(part, tol=tol, compact=not uniform, blend=blend)
     write_mesh(m.vertices, m.faces, out, force=force)
