@@ -177,7 +177,7 @@ class _Meshes:
         side = MEMBER_CELL * np.exp2(np.maximum(level, 0.0))
         cell = np.floor(points / side[:, None])
         centre = (cell + 0.5) * side[:, None]
-        shared &= index.farther(points, np.linalg.norm(points - centre, axis=1))
+        shared &= index.beyond(d, np.linalg.norm(points - centre, axis=1))
         out = np.zeros(len(points), bool)
         own = np.flatnonzero(~shared)
         if len(own):
@@ -250,7 +250,10 @@ class _Index:
         x = np.broadcast_to(np.asarray(x, np.float64), (len(points),))
         if not len(self.f):
             return np.ones(len(points), bool)
-        d = self.distances(points)
+        return self.beyond(self.distances(points), x)
+
+    def beyond(self, d: np.ndarray, x) -> np.ndarray:
+        """Whether distances ``d`` of :meth:`distances` prove their points farther than ``x``."""
         # the kernel returns d (1 + DISTANCE_SLACK) + GAP for every distance d up to the reach
         return (d > x * (1.0 + DISTANCE_SLACK) + GAP) & (x <= self.reach)
 

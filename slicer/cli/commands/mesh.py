@@ -14,7 +14,7 @@ from slicer.meshing.composite import mesh_part
 from slicer.meshing.surface import DEFAULT_TOL
 from slicer.parts.part import as_part
 from slicer.cli.commands.options import blend_option, load_part_from, part_inputs, part_options, positive, radius_option
-from slicer.cli.commands.supports import add_supports, pop_support_options, supports_options
+from slicer.cli.commands.supports import pop_support_options, supports_for, supports_options
 
 
 @click.command("mesh")
@@ -52,15 +52,12 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
     check_not_input(out, *part_inputs(scene, {"solids": solids, "clips_inside": clips_inside,
                                               "clips_outside": clips_outside}))
     part = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet)
-    if beams and mesh_format(out) != "3mf":
+    if mesh_format(out) != "3mf" and beams:
         raise OutputError(f"{out}: --beams writes a 3MF beam lattice; name the output .3mf")
-    mesh_format(out)
     check_destination(out, force)
-    supports = pop_support_options(support_kw)
-    if supports["supports"] == "auto" or any(v is not None for k, v in supports.items() if k != "supports"):
-        lattice = part.skeleton if not part.has_meshes else part
-        with numba_threads(threads):
-            part = add_supports(lattice, supports, SliceJob.from_options(pixel_size=0.05), blend, quiet)
+    with numba_threads(threads):
+        part = supports_for(part, pop_support_options(support_kw), SliceJob.from_options(pixel_size=0.05), blend,
+                            quiet)
     if beams:
         st = write_beam_lattice(part, out, force=force)
         if not quiet:

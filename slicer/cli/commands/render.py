@@ -7,7 +7,7 @@ from slicer.render.rendering import CAMERAS, VIEWS
 from slicer.render.output import run_render
 from slicer.model.blend import require_sum
 from slicer.job.spec import SliceJob
-from slicer.cli.commands.supports import add_supports, pop_support_options, supports_options
+from slicer.cli.commands.supports import pop_support_options, supports_for, supports_options
 from slicer.cli.commands.options import blend_option, load_part_from, part_options, radius_option
 
 
@@ -52,10 +52,7 @@ def command(scene, out, size, view, camera, fov, eye, target, opacity, max_opaci
     composited front to back as semi-transparent layers (a part's meshes too)."""
     require_sum(blend, "rendering (the renderer's ray kernels)")
     skel = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet)
-    supports = pop_support_options(support_kw)
-    if supports["supports"] == "auto" or any(v is not None for k, v in supports.items() if k != "supports"):
-        lattice = skel.skeleton if not skel.has_meshes else skel
-        skel = add_supports(lattice, supports, SliceJob.from_options(pixel_size=0.05), blend, quiet)   # --supports auto
+    skel = supports_for(skel, pop_support_options(support_kw), SliceJob.from_options(pixel_size=0.05), blend, quiet)
     st = run_render(skel, out, roots_out=roots_out, force=force, transparent=transparent, size=size,
                     view=view, camera=camera, fov=fov, eye=eye or None, target=target or None,
                     opacity=opacity, max_opacity=max_opacity, opaque=opaque, tolerance=tolerance,

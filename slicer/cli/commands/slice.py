@@ -11,7 +11,7 @@ from slicer.scale.executors import executor_info
 from slicer.job.run import check_not_input, run_slice
 from slicer.parts.part import Part
 from slicer.scale.tileplan import auto_budget, parse_size
-from slicer.cli.commands.supports import add_supports, pop_support_options, supports_options
+from slicer.cli.commands.supports import pop_support_options, supports_for, supports_options
 from slicer.cli.commands.info import scene_stats
 from slicer.cli.commands.options import (grid_options, job_from, load_part_from, part_inputs, part_options, print_options, radius_option,
                       scale_options, trace_options)
@@ -54,9 +54,9 @@ def command(scene, out, radius, quiet, dry_run, verbose, solids, clips_inside, c
     job = job_from(options, max_memory=budget, scene_name=str(scene))
     supports = pop_support_options(options)
     skel = load_part_from(scene, radius, solids, clips_inside, clips_outside, repair, quiet)
-    if supports["supports"] == "auto" or any(v is not None for k, v in supports.items() if k != "supports"):
-        lattice = skel.skeleton if not skel.has_meshes else skel
-        skel = Part(add_supports(lattice, supports, job, job.trace.blend, quiet), (), skel.source)  # --supports auto
+    supported = supports_for(skel, supports, job, job.trace.blend, quiet)
+    if supported is not skel:
+        skel = Part(supported, (), skel.source)         # --supports auto
     report = (lambda text: click.echo(text, err=True)) if (verbose and not dry_run) else None
     summary = run_slice(skel, out, job, dry_run=dry_run, report=report)
     if dry_run:

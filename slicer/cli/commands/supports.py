@@ -101,6 +101,20 @@ def add_supports(skel, opts: dict, job, blend: str = "sum", quiet: bool = True):
     return out
 
 
+def supports_for(part, opts: dict, job, blend: str = "sum", quiet: bool = True):
+    """``part`` (a :class:`~slicer.parts.part.Part`) with supports when ``opts`` ask for them
+    (:func:`add_supports`, on the job's grid pitch), else ``part`` itself.
+
+    Raises
+    ------
+    OptionError
+        As :func:`add_supports`.
+    """
+    if opts.get("supports", "none") != "auto" and all(v is None for k, v in opts.items() if k != "supports"):
+        return part
+    return add_supports(part.skeleton if not part.has_meshes else part, opts, job, blend, quiet)
+
+
 def support_report(skel, result) -> dict | None:
     """The check report's ``supports`` entry of a supported scene (None otherwise): the
     counts of :func:`slicer.supports.show.support_stats`, the voxels and resin the
@@ -165,5 +179,6 @@ def command(scene, out, printer, pixel_size, layer_height, blend, radius, thread
 
 
 __all__ = ["command", "supports_options", "support_settings_options", "pop_support_options", "add_supports",
+           "supports_for",
            "support_report",
            "settings_from", "job_pitch", "describe"]
