@@ -29,6 +29,7 @@ import manifold3d
 from slicer._kernels.field.binning import bin_boxes
 from slicer._kernels.meshing.nearest import distance_bounds
 from slicer.meshing.certificate import SurfaceMesh, piece_distances
+from slicer.parts.meshes import twin_corners
 
 #: simplification tolerances tried, as fractions of the budget ``tol − b0``
 FRACTIONS = (0.5, 0.25, 0.125, 0.0625)
@@ -64,9 +65,13 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, eps: float):
 
 
 def mesh_to_mesh(v0: np.ndarray, f0: np.ndarray, v1: np.ndarray, f1: np.ndarray, target: float,
-                 reach: float) -> np.ndarray:
+                 reach: float, wedges: bool | None = True) -> np.ndarray:
     """Per triangle of mesh 0, a bound of its points' distance to mesh 1 (mm; inf when mesh 1 is
-    farther than ``reach``); pieces are split while above ``target``."""
+    farther than ``reach``); pieces are split while above ``target``. With ``wedges``, where
+    mesh 1's flat regions (a part's faces) were triangulated anew, wedges of its triangles
+    bound the pieces straddling their edges (:func:`slicer._kernels.meshing.nearest.distance_bounds`);
+    False: none (the same compiled kernel); None: none, and a kernel without their code (a
+    lattice's mesh has no flat faces: its job does not compile them)."""
     tri = v1[f1]
     lo = tri.min(axis=1) - reach
     hi = tri.max(axis=1) + reach
@@ -76,8 +81,15 @@ def mesh_to_mesh(v0: np.ndarray, f0: np.ndarray, v1: np.ndarray, f1: np.ndarray,
     dims = np.maximum(1, np.ceil(ext / side)).astype(np.int64)
     cell = np.full(3, side)
     offsets, ids = bin_boxes(lo, hi, np.arange(len(f1), dtype=np.int64), box_lo, cell, dims)
+    f1 = np.ascontiguousarray(f1, np.int64)
+    if wedges is None:
+        across = None
+    elif wedges:
+        across = np.ascontiguousarray(twin_corners(f1).reshape(-1, 3) // 3)
+    else:
+        across = np.zeros((0, 3), np.int64)
     return distance_bounds(np.ascontiguousarray(v0, np.float64), np.ascontiguousarray(f0, np.int64),
-                           np.ascontiguousarray(v1, np.float64), np.ascontiguousarray(f1, np.int64),
+                           np.ascontiguousarray(v1, np.float64), f1, across,
                            offsets, ids, box_lo, cell, dims, float(target), float(reach))
 
 
@@ -118,12 +130,14 @@ def triangle_bounds(fld, vertices: np.ndarray, faces: np.ndarray, tol: float, li
     return out, n_pieces
 
 
-def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface, target: float | None = None):
+def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface, target: float | None = None,
+               wedges: bool | None = None):
     """The loop of :func:`compact` (and of a part's, :mod:`slicer.meshing.composite`): ``uniform`` simplified to
     fractions of ``budget``; surface to mesh by the distances from ``uniform`` to the result
     (pieces split while above ``target``, by default ``reach − uniform.surface_to_mesh``; nothing
-    farther than ``reach`` found); mesh to surface by ``mesh_to_surface(v1, f1, row)`` (a bound,
-    mm; ``row`` takes its counts)."""
+    farther than ``reach`` found; ``wedges`` as :func:`mesh_to_mesh`'s, None by default: a
+    lattice's); mesh to surface by
+    ``mesh_to_surface(v1, f1, row)`` (a bound, mm; ``row`` takes its counts)."""
     if not budget > 0.0 or not len(uniform.faces):
         return None
     tried = []
@@ -134,7 +148,7 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
         if len(f1) > GAIN * len(uniform.faces) or not len(f1):
             break
         d01 = float(mesh_to_mesh(uniform.vertices, uniform.faces, v1, f1,
-                                 reach - uniform.surface_to_mesh if target is None else target, reach).max())
+                                 reach - uniform.surface_to_mesh if target is None else target, reach, wedges).max())
         b1 = uniform.surface_to_mesh + d01
         row["uniform_to_compact"] = d01
         if not b1 <= tol:

@@ -120,6 +120,9 @@ _CELL_RANGE = 1 << 21
 _CELL_SLACK = 1e-7
 _LEVELS = 21
 _QUERY_ROWS = 200_000
+#: points have no pieces to straddle a mesh's edges: no wedges (slicer._kernels.meshing.nearest; empty,
+#: not None, so the part's job compiles one distance kernel, as for the distance back below)
+_NO_WEDGES = np.zeros((0, 3), np.int64)
 _STEPS = np.stack(np.meshgrid(*[np.arange(3)] * 3, indexing="ij"), -1).reshape(-1, 3)
 
 
@@ -241,8 +244,8 @@ class _Index:
         if not len(points):
             return np.zeros(0)
         p = np.ascontiguousarray(points, np.float64)
-        return distance_bounds(p, np.repeat(np.arange(len(p)), 3).reshape(-1, 3), self.v, self.f, self.offsets,
-                               self.ids, self.origin, self.cell, self.dims, 1e-300, self.reach)
+        return distance_bounds(p, np.repeat(np.arange(len(p)), 3).reshape(-1, 3), self.v, self.f, _NO_WEDGES,
+                               self.offsets, self.ids, self.origin, self.cell, self.dims, 1e-300, self.reach)
 
     def farther(self, points: np.ndarray, x) -> np.ndarray:
         """Whether each point is proved farther than ``x`` (mm, scalar or (n,)) from the surface
@@ -783,7 +786,10 @@ def _compact(lat: _Lattices, meshes: _Meshes, uniform: SurfaceMesh, tol: float) 
                 plain[mine] = np.isfinite(out[mine])
         rest = ~plain
         if rest.any():
-            d10 = mesh_to_mesh(v1, f1[rest], uniform.vertices, uniform.faces, DISTANCE_SHARE * room, room)
+            # no wedges: what they would certify, the probes below do for less (the hole of
+            # benchmarks/mesh_parts_bench.py: this distance took 81 s without them, 165 s with)
+            d10 = mesh_to_mesh(v1, f1[rest], uniform.vertices, uniform.faces, DISTANCE_SHARE * room, room,
+                               wedges=False)
             out[rest] = uniform.mesh_to_surface + d10
         # what the distance back leaves above the tolerance (large triangles on a part's mesh), by probes
         over = np.flatnonzero(rest & ~(out <= tol))
@@ -795,7 +801,7 @@ def _compact(lat: _Lattices, meshes: _Meshes, uniform: SurfaceMesh, tol: float) 
         return float(out.max()) if len(out) else 0.0
 
     return simplified(uniform, tol, tol - uniform.bound, tol, mesh_to_surface,
-                      target=DISTANCE_SHARE * (tol - uniform.surface_to_mesh))
+                      target=DISTANCE_SHARE * (tol - uniform.surface_to_mesh), wedges=True)
 
 
 def mesh_part(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attempts: int = ATTEMPTS,

@@ -166,6 +166,31 @@ def _edges(faces: np.ndarray):
     return e, inv.reshape(-1), cnt
 
 
+def twin_corners(faces: np.ndarray) -> np.ndarray:
+    """For each corner ``3 f + c`` (the half-edge from ``faces[f, c]`` to the next corner's vertex),
+    the corner where the half-edge running the other way starts (-1: none).
+
+    Parameters
+    ----------
+    faces : (m, 3) int64
+
+    Returns
+    -------
+    (3 m,) int64
+        ``twin_corners(faces) // 3`` is the face across each edge (where it is not -1).
+    """
+    if not len(faces):
+        return np.zeros(0, np.int64)
+    n = int(faces.max()) + 1
+    a = faces.ravel()
+    b = faces[:, [1, 2, 0]].ravel()                     # the next corner's vertex
+    key = a * n + b                                     # half-edge a -> b, keyed at its start corner
+    order = np.argsort(key)
+    want = b * n + a
+    j = np.minimum(np.searchsorted(key[order], want), len(key) - 1)
+    return np.where(key[order][j] == want, order[j], -1).astype(np.int64)
+
+
 def _pinched(faces: np.ndarray, twin: np.ndarray | None = None) -> np.ndarray:
     """Vertices whose faces form more than one fan (the surface touches itself there).
 
@@ -180,12 +205,9 @@ def _pinched(faces: np.ndarray, twin: np.ndarray | None = None) -> np.ndarray:
     n = int(faces.max()) + 1
     a = faces.ravel()                                   # corner 3f + c: vertex faces[f, c]
     if twin is None:
-        b = faces[:, [1, 2, 0]].ravel()                 # the next corner's vertex
-        key = a * n + b                                 # half-edge a -> b, keyed at its start corner
-        order = np.argsort(key)
         # for corner (f, c) the twin half-edge is b -> a; its start corner is b's corner in face g,
         # and v's corner there is the next one
-        g_corner = order[np.searchsorted(key[order], b * n + a)]
+        g_corner = twin_corners(faces)
     else:                                               # twin of _edges' directed edge c m + f
         t = twin.reshape(3, m).T.ravel()                # ... of corner 3f + c
         g_corner = 3 * (t % m) + t // m
@@ -466,5 +488,5 @@ def read_mesh_file(path, scale: float = 1.0, name: str | None = None, repair: bo
     return make_mesh(verts, faces, label, repair=repair)
 
 
-__all__ = ["Mesh", "MeshReport", "make_mesh", "mesh_problems", "read_mesh_file", "merge_coincident",
+__all__ = ["Mesh", "MeshReport", "make_mesh", "mesh_problems", "read_mesh_file", "merge_coincident", "twin_corners",
            "signed_volume", "MESH_SUFFIXES"]
