@@ -198,7 +198,8 @@ REACH_STEPS = (0.0625, 0.125, 0.25, 0.5, 1.0)
 
 
 def distances_to_surface(fld: MeshField, centres: np.ndarray, radii: np.ndarray, e: np.ndarray, g: np.ndarray,
-               cap: float, cover: tuple[np.ndarray, float] | None = None) -> np.ndarray:
+               cap: float, cover: tuple[np.ndarray, float] | None = None,
+               floor: np.ndarray | None = None) -> np.ndarray:
     """Certified distances from sets to the surface along the gradient (inf: not certified).
 
     Each set lies in the ball ``B(c, r)`` and has ``|F − 1| <= e`` (or the matching
@@ -214,6 +215,12 @@ def distances_to_surface(fld: MeshField, centres: np.ndarray, radii: np.ndarray,
     (a cube in its eight half cubes' balls); the points within s of a set then lie in the
     balls ``B(sub, ρ + s)``, and H is the largest over those (smaller balls, tighter bounds);
     the slope still counts the distance ``r + s`` from c.
+
+    ``floor`` (per set): H over a ball inside every ball tried (``B(c, r)``). The bounds grow
+    with the ball, so a reach s where ``s (g − floor (r + s)) < e`` could not certify (the
+    slope would be at most ``g − floor (r + s)``) and its balls are not bounded: fewer ball
+    bounds (most uncertified pieces of a large triangle fail at every reach). Skipping can
+    only leave a set uncertified, never certify one.
     """
     out = np.full(len(e), np.inf)
     todo = np.arange(len(e))
@@ -222,6 +229,16 @@ def distances_to_surface(fld: MeshField, centres: np.ndarray, radii: np.ndarray,
         if not len(todo):
             break
         s = cap * frac
+        if floor is not None:
+            hope = s * (g[todo] - floor[todo] * (radii[todo] + s)) >= e[todo] * (1.0 - 1e-9)
+            if not hope.all():
+                wait = todo[~hope]
+                todo = todo[hope]
+                if not len(todo):
+                    todo = wait
+                    continue
+            else:
+                wait = todo[:0]
         if cover is None:
             _, _, H, _ = fld.balls_bounds(centres[todo], radii[todo] + s)
         else:
@@ -234,6 +251,8 @@ def distances_to_surface(fld: MeshField, centres: np.ndarray, radii: np.ndarray,
         ok = d <= s
         out[todo[ok]] = d[ok]
         todo = todo[~ok]
+        if floor is not None and len(wait):
+            todo = np.sort(np.concatenate([todo, wait]))
     return out
 
 
@@ -261,10 +280,10 @@ def piece_distances(fld: MeshField, tri: np.ndarray, tol: float, resid: np.ndarr
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     ln = np.linalg.norm(n, axis=1)
     n = np.where(ln[:, None] > 0, n / np.where(ln > 0, ln, 1.0)[:, None], 0.0)
-    _, _, _, HP = fld.balls_bounds(m, R, n)
+    _, _, H, HP = fld.balls_bounds(m, R, n)
     e = (resid.max(axis=1) + 0.5 * HP * R * R) * (1.0 + 1e-9)
     _, g = fld.values(m, gradient=True)
-    return distances_to_surface(fld, m, R, e, np.linalg.norm(g, axis=1), tol)
+    return distances_to_surface(fld, m, R, e, np.linalg.norm(g, axis=1), tol, floor=H)
 
 
 __all__ = ["SurfaceMesh", "MeshField", "straight_chains", "enclosing_balls", "distances_to_surface", "piece_distances", "REACH_STEPS"]

@@ -23,6 +23,8 @@ tolerance is tried; when none certifies, the uniform mesh stays.
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import manifold3d
 
@@ -43,7 +45,7 @@ PIECES = 2.0
 MAX_CELLS = 4_000_000
 
 
-def simplify(vertices: np.ndarray, faces: np.ndarray, eps: float):
+def simplify(vertices: np.ndarray, faces: np.ndarray, eps: float, hold: np.ndarray | None = None):
     """``(vertices, faces)`` of the closed mesh simplified by manifold3d to ``eps`` (mm).
 
     Parameters
@@ -52,16 +54,61 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, eps: float):
     faces : (t, 3) int64
         Closed, oriented, manifold.
     eps : float, mm
+    hold : (t,) bool, optional
+        Triangles to hold as they are: each is passed as a face of its own, and manifold3d
+        collapses no edge between two faces (only its clean-up of triangles degenerate
+        within ``eps`` may still change them).
 
     Returns
     -------
     (v', 3) float64 and (t', 3) int64: a subset of the vertices, closed and oriented.
     """
+    face_id = None
+    if hold is not None and hold.any():
+        face_id = np.where(hold, 1 + np.arange(len(faces), dtype=np.uint64), np.uint64(0))
     mesh = manifold3d.Mesh64(vert_properties=np.ascontiguousarray(vertices, np.float64),
-                             tri_verts=np.ascontiguousarray(faces, np.uint64))
+                             tri_verts=np.ascontiguousarray(faces, np.uint64), face_id=face_id)
     out = manifold3d.Manifold(mesh).simplify(float(eps)).to_mesh64()
     v = np.array(out.vert_properties, dtype=np.float64)[:, :3]
     return np.ascontiguousarray(v), np.array(out.tri_verts, dtype=np.int64)
+
+
+def within(points: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """Whether each point is in a grid cell meeting the box of some ball (a superset of the
+    balls' union; the cells' side is twice the median radius, or an eighth of the largest).
+
+    Parameters
+    ----------
+    points : (n, 3) float64, mm
+    centres : (k, 3) float64, mm
+    radii : (k,) float64, mm
+
+    Returns
+    -------
+    (n,) bool
+    """
+    if not len(centres) or not len(points):
+        return np.zeros(len(points), bool)
+    side = max(2.0 * float(np.median(radii)), float(radii.max()) / 8.0, 1e-9)
+    origin = points.min(axis=0) - side
+    span = np.ceil((np.maximum(points.max(axis=0), (centres + radii[:, None]).max(axis=0)) - origin) / side) + 2
+
+    def key(ijk):
+        return (ijk[..., 2] * span[1] + ijk[..., 1]) * span[0] + ijk[..., 0]
+
+    lo = np.maximum(np.floor((centres - radii[:, None] - origin) / side), 0).astype(np.int64)
+    hi = np.floor((centres + radii[:, None] - origin) / side).astype(np.int64)
+    marked = []
+    for n in np.unique(hi - lo + 1, axis=0):         # the cells of each ball's box, by box size
+        group = (hi - lo + 1 == n).all(axis=1)
+        steps = np.stack(np.meshgrid(*[np.arange(int(c)) for c in n], indexing="ij"), -1).reshape(-1, 3)
+        marked.append(key(lo[group][:, None, :] + steps[None]).ravel())
+    marked = np.unique(np.concatenate(marked))
+    if not len(marked):
+        return np.zeros(len(points), bool)
+    cells = key(np.floor((points - origin) / side).astype(np.int64))
+    j = np.minimum(np.searchsorted(marked, cells), len(marked) - 1)
+    return marked[j] == cells
 
 
 def mesh_to_mesh(v0: np.ndarray, f0: np.ndarray, v1: np.ndarray, f1: np.ndarray, target: float,
@@ -93,16 +140,32 @@ def mesh_to_mesh(v0: np.ndarray, f0: np.ndarray, v1: np.ndarray, f1: np.ndarray,
                            offsets, ids, box_lo, cell, dims, float(target), float(reach))
 
 
-def _quarters(p: np.ndarray) -> np.ndarray:
-    """(k, 3, 3) triangles -> (4 k, 3, 3): each cut at its edges' midpoints."""
+#: pieces certified at a time (their corners are made per batch, :func:`_pieces`)
+BATCH = 200_000
+
+
+def _quarters(p: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) triangles -> (k, 3, 3): quarter ``which`` (k,) of each, cut at its edges' midpoints
+    (0, 1, 2: at corner a, b, c; 3: the middle one)."""
     a, b, c = p[:, 0], p[:, 1], p[:, 2]
-    ab, bc, ca = 0.5 * (a + b), 0.5 * (b + c), 0.5 * (c + a)
-    q = np.stack([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1), np.stack([ca, bc, c], 1),
-                  np.stack([ab, bc, ca], 1)], 1)
-    return q.reshape(-1, 3, 3)
+    points = np.stack([a, b, c, 0.5 * (a + b), 0.5 * (b + c), 0.5 * (c + a)], 1)
+    return points[np.arange(len(p))[:, None], _QUARTER[which]]
 
 
-def triangle_bounds(fld, vertices: np.ndarray, faces: np.ndarray, tol: float, limit: int | None = None):
+#: each quarter's corners among a, b, c, ab, bc, ca
+_QUARTER = np.array([[0, 3, 5], [3, 1, 4], [5, 4, 2], [3, 4, 5]])
+
+
+def _pieces(corners: np.ndarray, path: np.ndarray, depth: int) -> np.ndarray:
+    """(k, 3, 3) pieces: the quarters named by ``path`` (two bits per level, the first level
+    highest) of the triangles ``corners`` (k, 3, 3), ``depth`` levels down."""
+    for level in range(depth - 1, -1, -1):
+        corners = _quarters(corners, (path >> (2 * level)) & 3)
+    return corners
+
+
+def triangle_bounds(fld, vertices: np.ndarray, faces: np.ndarray, tol: float, limit: int | None = None,
+                    first_failure: bool = False):
     """Certified distance from each triangle's points to the surface (mm; inf: not certified
     within ``tol``), and the pieces certified.
 
@@ -110,72 +173,144 @@ def triangle_bounds(fld, vertices: np.ndarray, faces: np.ndarray, tol: float, li
     certified as the uniform mesh's triangles are
     (:func:`slicer.meshing.certificate.piece_distances`). With ``limit``, the work stops
     (and the triangles left are not certified) once a level has more pieces than that.
+    A piece is kept as its triangle and its path of quarters (16 bytes); its corners are
+    made :data:`BATCH` pieces at a time. With ``first_failure``, the triangles go
+    :data:`BATCH` // 64 at a time through every level, and the work stops at the first batch
+    with a triangle not certified (the rest are then inf; ``limit`` counts per batch, in
+    proportion).
     """
-    pieces = vertices[faces]
+    if not first_failure:
+        return _triangle_bounds(fld, vertices, faces, tol, limit)
+    out = np.full(len(faces), np.inf)
+    n_pieces = 0
+    step = BATCH // 64
+    for lo in range(0, len(faces), step):
+        part = faces[lo:lo + step]
+        share = None if limit is None else max(1, limit * len(part) // max(len(faces), 1))
+        out[lo:lo + step], n = _triangle_bounds(fld, vertices, part, tol, share)
+        n_pieces += n
+        if not np.isfinite(out[lo:lo + step]).all():
+            break
+    return out, n_pieces
+
+
+def _triangle_bounds(fld, vertices: np.ndarray, faces: np.ndarray, tol: float, limit: int | None):
+    """:func:`triangle_bounds` of all the triangles, level by level."""
     owner = np.arange(len(faces))
+    path = np.zeros(len(faces), np.int64)
     out = np.zeros(len(faces))
     n_pieces = 0
     for depth in range(DEPTH + 1):
-        if not len(pieces):
+        if not len(owner):
             break
-        n_pieces += len(pieces)
-        d = piece_distances(fld, pieces, tol)
+        n_pieces += len(owner)
+        d = np.empty(len(owner))
+        for lo in range(0, len(owner), BATCH):
+            part = slice(lo, lo + BATCH)
+            d[part] = piece_distances(fld, _pieces(vertices[faces[owner[part]]], path[part], depth), tol)
         ok = np.isfinite(d)
         np.maximum.at(out, owner[ok], d[ok])
         if depth == DEPTH or (limit is not None and 4 * int((~ok).sum()) > limit):
             out[owner[~ok]] = np.inf
             break
-        pieces = _quarters(pieces[~ok])
         owner = np.repeat(owner[~ok], 4)
+        path = (np.repeat(path[~ok], 4) << 2) | np.tile(np.arange(4), int((~ok).sum()))
     return out, n_pieces
 
 
+#: rounds, per simplification tolerance, that hold the uniform triangles where the last did not certify
+HOLD_ROUNDS = 1
+#: ... while the uniform triangles held are at most this share of the simplified mesh's
+HOLD_SHARE = 0.5
+
+
+def _balls(tri: np.ndarray, margin: float):
+    """Centres and radii (mm) of balls round triangles (k, 3, 3), widened by ``margin``."""
+    c = tri.mean(axis=1)
+    return c, np.linalg.norm(tri - c[:, None, :], axis=2).max(axis=1) + margin
+
+
 def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface, target: float | None = None,
-               wedges: bool | None = None):
+               wedges: bool | None = None, hold_rounds: int = HOLD_ROUNDS):
     """The loop of :func:`compact` (and of a part's, :mod:`slicer.meshing.composite`): ``uniform`` simplified to
     fractions of ``budget``; surface to mesh by the distances from ``uniform`` to the result
     (pieces split while above ``target``, by default ``reach − uniform.surface_to_mesh``; nothing
     farther than ``reach`` found; ``wedges`` as :func:`mesh_to_mesh`'s, None by default: a
-    lattice's); mesh to surface by
-    ``mesh_to_surface(v1, f1, row)`` (a bound, mm; ``row`` takes its counts)."""
+    lattice's); mesh to surface by ``mesh_to_surface(v1, f1, row)`` (a bound per triangle, mm;
+    ``row`` takes its counts).
+
+    Where a simplification is not certified (uniform triangles too far from it, or its own
+    triangles not certified on the surface), the uniform triangles near those places are held
+    as they are and the same tolerance is tried again, up to ``hold_rounds`` times, before
+    a smaller one: the rest of the mesh keeps the larger triangles."""
     if not budget > 0.0 or not len(uniform.faces):
         return None
     tried = []
+    v0, f0 = uniform.vertices, uniform.faces
+    centroids = None
     for frac in FRACTIONS:
-        v1, f1 = simplify(uniform.vertices, uniform.faces, frac * budget)
-        row = {"eps": frac * budget, "triangles": int(len(f1)), "kept": False}
-        tried.append(row)
-        if len(f1) > GAIN * len(uniform.faces) or not len(f1):
+        eps = frac * budget
+        hold = np.zeros(len(f0), bool)
+        done = False
+        for rnd in range(hold_rounds + 1):
+            start = time.perf_counter()
+            v1, f1 = simplify(v0, f0, eps, hold)
+            row = {"eps": eps, "triangles": int(len(f1)), "held": int(hold.sum()), "kept": False}
+            tried.append(row)
+            if len(f1) > GAIN * len(f0) or not len(f1):
+                # a smaller tolerance saves fewer triangles still; with triangles held, it may not
+                done = not hold.any()
+                break
+            d01 = mesh_to_mesh(v0, f0, v1, f1, reach - uniform.surface_to_mesh if target is None else target,
+                               reach, wedges)
+            b1 = uniform.surface_to_mesh + float(d01.max())
+            row.update(uniform_to_compact=float(d01.max()), seconds=time.perf_counter() - start)
+            if b1 <= tol:
+                # a round that holds nothing more after it only needs to know whether it certifies
+                row["first_failure"] = rnd == hold_rounds and rnd > 0
+                a = mesh_to_surface(v1, f1, row)
+                a1 = float(a.max()) if len(a) else 0.0
+                row.update(mesh_to_surface=a1, kept=bool(a1 <= tol), seconds=time.perf_counter() - start)
+                if row["kept"]:
+                    stats = dict(uniform.stats, uniform_triangles=int(len(f0)),
+                                 uniform_surface_to_mesh=uniform.surface_to_mesh, simplify=tried,
+                                 triangles=int(len(f1)))
+                    return SurfaceMesh(v1, f1, tol, max(a1, b1), a1, b1, uniform.cell, stats)
+            if rnd == hold_rounds:
+                break
+            if b1 <= tol:
+                where = _balls(v1[f1[~(a <= tol)]], 2.0 * eps)
+            elif float(d01.max()) <= tol:
+                where = _balls(v0[f0[~(uniform.surface_to_mesh + d01 <= tol)]], 2.0 * eps)
+            else:       # farther than the whole tolerance: too coarse there to hold (a smaller one next)
+                break
+            if centroids is None:
+                centroids = v0[f0].mean(axis=1)
+            more = within(centroids, *where) & ~hold
+            # held uniform triangles stay small: worth it only while they are few beside the
+            # simplified mesh's (a smaller tolerance roughly doubles its count instead)
+            if not more.any() or int(hold.sum() + more.sum()) > HOLD_SHARE * len(f1):
+                break
+            hold |= more
+        if done:
             break
-        d01 = float(mesh_to_mesh(uniform.vertices, uniform.faces, v1, f1,
-                                 reach - uniform.surface_to_mesh if target is None else target, reach, wedges).max())
-        b1 = uniform.surface_to_mesh + d01
-        row["uniform_to_compact"] = d01
-        if not b1 <= tol:
-            continue
-        a1 = mesh_to_surface(v1, f1, row)
-        row.update(mesh_to_surface=a1, kept=bool(a1 <= tol))
-        if row["kept"]:
-            stats = dict(uniform.stats, uniform_triangles=int(len(uniform.faces)), uniform_bound=uniform.bound,
-                         simplify=tried, triangles=int(len(f1)))
-            return SurfaceMesh(v1, f1, tol, max(a1, b1), a1, b1, uniform.cell, stats)
     uniform.stats["simplify"] = tried
     return None
 
 
 def compact(fld, uniform, tol: float):
-    """The uniform certified mesh ``uniform`` (a :class:`slicer.meshing.certificate.SurfaceMesh`)
+    """The uniform mesh ``uniform`` (its cubes certified) (a :class:`slicer.meshing.certificate.SurfaceMesh`)
     simplified and certified again within ``tol``, or None when no simplification certifies
     or saves triangles. Mesh to surface: each triangle certified on the field (:func:`triangle_bounds`)."""
     # the certificate reaches no farther than the thinnest strut (certificate.distances_to_surface)
     reach = min(tol, float(fld.skel.radii.min()))
 
     def on_field(v1, f1, row):
-        d, n_pieces = triangle_bounds(fld, v1, f1, tol, int(PIECES * len(uniform.faces)))
+        d, n_pieces = triangle_bounds(fld, v1, f1, tol, int(PIECES * len(uniform.faces)), row["first_failure"])
         row["certified_pieces"] = int(n_pieces)
-        return float(d.max())
+        return d
 
     return simplified(uniform, tol, reach - uniform.surface_to_mesh, reach, on_field)
 
 
-__all__ = ["compact", "simplified", "simplify", "mesh_to_mesh", "triangle_bounds"]
+__all__ = ["compact", "simplified", "simplify", "within", "mesh_to_mesh", "triangle_bounds"]

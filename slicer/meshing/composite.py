@@ -798,10 +798,11 @@ def _compact(lat: _Lattices, meshes: _Meshes, uniform: SurfaceMesh, tol: float) 
             out[over] = np.minimum(out[over], d)
             row["probed_pieces"] = n_probed
         row["by_distance"] = int(rest.sum())
-        return float(out.max()) if len(out) else 0.0
+        return out
 
+    # no held rounds here yet: each would certify the whole part again (minutes on benchmarks/mesh_parts_bench.py)
     return simplified(uniform, tol, tol - uniform.bound, tol, mesh_to_surface,
-                      target=DISTANCE_SHARE * (tol - uniform.surface_to_mesh), wedges=True)
+                      target=DISTANCE_SHARE * (tol - uniform.surface_to_mesh), wedges=True, hold_rounds=0)
 
 
 def mesh_part(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attempts: int = ATTEMPTS,

@@ -420,8 +420,9 @@ def _cube_distances(fld: MeshField, grid: _Grid, band: np.ndarray, g: np.ndarray
     for lo in range(0, len(idx), step):
         k = idx[lo:lo + step]
         cover = (_sub_cubes(grid, band[k], split), math.sqrt(3.0) * grid.h / (2 << split)) if split else None
+        # without a split the balls tried hold the cube's ball, over which H is Hr
         out[lo:lo + step] = distances_to_surface(fld, grid.centres(band[k], 0), np.full(len(k), r), delta[k], g[k],
-                                                 min(tol, grid.h), cover)
+                                                 min(tol, grid.h), cover, floor=None if split else Hr[k])
     return out
 
 
@@ -442,14 +443,17 @@ def _surface_to_mesh(fld: MeshField, grid: _Grid, band: np.ndarray, g: np.ndarra
     return d
 
 
-def _triangle_distances(fld: MeshField, verts: np.ndarray, faces: np.ndarray, tol: float):
+def _residuals(fld: MeshField, verts: np.ndarray) -> np.ndarray:
+    """Each vertex's residual ``|F(v) − 1|``, :data:`CHUNK` at a time."""
+    return np.concatenate([np.abs(fld.values(verts[lo:lo + CHUNK])[0] - 1.0) for lo in range(0, len(verts), CHUNK)]
+                          or [np.zeros(0)])
+
+
+def _triangle_distances(fld: MeshField, verts: np.ndarray, faces: np.ndarray, tol: float, resid: np.ndarray):
     """Mesh to surface (module docstring, step 3): per triangle, the certified distance from
-    its points to the surface (inf: not certified), and each vertex's residual ``|F(v) − 1|``."""
-    resid = np.concatenate([np.abs(fld.values(verts[lo:lo + CHUNK])[0] - 1.0) for lo in range(0, len(verts), CHUNK)]
-                           or [np.zeros(0)])
-    d_tri = np.concatenate([piece_distances(fld, verts[f], tol, resid[f])
-                            for f in _chunks([faces], CHUNK)] or [np.zeros(0)])
-    return d_tri, resid
+    its points to the surface (inf: not certified), given the vertices' residuals."""
+    return np.concatenate([piece_distances(fld, verts[f], tol, resid[f])
+                           for f in _chunks([faces], CHUNK)] or [np.zeros(0)])
 
 
 def _next_cell(h: float, g: np.ndarray, H: np.ndarray) -> float:
@@ -515,9 +519,14 @@ class Band:
         return own[j] == k
 
 
-def uniform_mesh(fld: MeshField, tol: float, cell: float | None, attempts: int):
+def uniform_mesh(fld: MeshField, tol: float, cell: float | None, attempts: int, triangles: bool = True):
     """The certified uniform mesh of marching tetrahedra (steps 1-3), with smaller cubes at
     each attempt until the bound is at most ``tol``, and its band.
+
+    ``triangles=False`` leaves out the certificate of the triangles (mesh to surface), which
+    a mesh simplified next does not need (it certifies its own): the attempts stop once the
+    cubes are certified, and ``mesh_to_surface`` and ``bound`` are nan
+    (:func:`certify_triangles` adds them).
 
     Returns
     -------
@@ -551,7 +560,7 @@ def uniform_mesh(fld: MeshField, tol: float, cell: float | None, attempts: int):
                  "settled_outside": counts["outside"]}
         if b <= tol or attempt == attempts:
             verts, faces, owner = _triangles(fld, grid, band)
-            d_tri, resid = _triangle_distances(fld, verts, faces, tol)
+            resid = _residuals(fld, verts)
             worst = np.zeros(len(band))
             if len(faces):
                 np.maximum.at(worst, owner, resid[faces].max(axis=1))
@@ -565,22 +574,57 @@ def uniform_mesh(fld: MeshField, tol: float, cell: float | None, attempts: int):
                     d_redo[again] = _cube_distances(fld, grid, band, g, Hr, worst, tol, which, split=SPLIT_LEVELS)
                 d_cell[redo] = d_redo
                 b = float(d_cell.max())
-            a = float(d_tri.max()) if len(d_tri) else 0.0
-            stats.update(triangles=int(len(faces)), uncertified_triangles=int(np.isinf(d_tri).sum()))
+            stats.update(triangles=int(len(faces)))
+            a = _triangles_bound(fld, verts, faces, tol, resid, stats) if triangles or not len(faces) else math.nan
         else:
             verts, faces, a = np.zeros((0, 3)), np.zeros((0, 3), np.int64), math.nan
         bad = ~np.isfinite(d_cell)
         stats.update(uncertified_cubes=int(bad.sum()), field_points=fld.points, field_balls=fld.balls)
-        bound = max(a, b) if len(faces) else b
-        out = SurfaceMesh(verts, faces, tol, bound, a, b, h, stats)
+        bound = max(a, b) if len(faces) and triangles else b
+        out = SurfaceMesh(verts, faces, tol, bound if triangles or not len(faces) else math.nan, a, b, h, stats)
         if bound <= tol:
             break
-        if math.isfinite(bound):
-            h *= min(0.85, max(0.5, 0.95 * math.sqrt(tol / bound)))
-        else:       # some cubes or triangles not certified at all: as small as the cubes ask, at least 0.5 h
-            wish = _next_cell(h, g[bad], Hr[bad])
-            h *= min(0.85, max(0.5, wish / h)) if math.isfinite(wish) else 0.7
+        h = _smaller_cell(h, tol, bound, g[bad], Hr[bad])
     return out, Band(grid, band)
+
+
+def _triangles_bound(fld: MeshField, verts: np.ndarray, faces: np.ndarray, tol: float, resid: np.ndarray,
+                     stats: dict) -> float:
+    """The mesh-to-surface bound of the triangles (mm; inf: some not certified); counts them in ``stats``."""
+    d_tri = _triangle_distances(fld, verts, faces, tol, resid)
+    stats.update(uncertified_triangles=int(np.isinf(d_tri).sum()))
+    return float(d_tri.max()) if len(d_tri) else 0.0
+
+
+def _smaller_cell(h: float, tol: float, bound: float, g: np.ndarray, H: np.ndarray) -> float:
+    """The next attempt's cube side after a bound above ``tol``; where it is inf (some cubes or
+    triangles not certified at all), as small as the cubes not certified (slopes ``g``, curvature
+    bounds ``H``) ask, at least half."""
+    if math.isfinite(bound):
+        return h * min(0.85, max(0.5, 0.95 * math.sqrt(tol / bound)))
+    wish = _next_cell(h, g, H)
+    return h * (min(0.85, max(0.5, wish / h)) if math.isfinite(wish) else 0.7)
+
+
+def certify_triangles(fld: MeshField, out: SurfaceMesh, attempts: int) -> SurfaceMesh:
+    """A uniform mesh made with ``triangles=False`` (:func:`uniform_mesh`) with its triangles
+    certified too; when they are not within its tolerance, the attempts go on with smaller
+    cubes (``attempts`` in all), as :func:`uniform_mesh` would have."""
+    tol = out.tol
+    if not len(out.faces):
+        return out
+    stats = dict(out.stats)
+    a = _triangles_bound(fld, out.vertices, out.faces, tol, _residuals(fld, out.vertices), stats)
+    stats.update(field_points=fld.points, field_balls=fld.balls)
+    bound = max(a, out.surface_to_mesh)
+    if bound <= tol or stats["attempts"] >= attempts:
+        return SurfaceMesh(out.vertices, out.faces, tol, bound, a, out.surface_to_mesh, out.cell, stats)
+    again, _ = uniform_mesh(fld, tol, _smaller_cell(out.cell, tol, bound, np.zeros(0), np.zeros(0)),
+                            attempts - stats["attempts"])
+    again.stats["attempts"] += stats["attempts"]
+    if "simplify" in stats:
+        again.stats["simplify"] = stats["simplify"]
+    return again
 
 
 def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attempts: int = ATTEMPTS,
@@ -600,7 +644,7 @@ def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attem
     attempts : int
         Attempts, each with a smaller cube when the bound is not certified.
     compact : bool
-        Simplify the certified uniform mesh and certify the result again
+        Simplify the uniform mesh (its cubes certified) and certify the result
         (:mod:`slicer.meshing.compact`): far fewer triangles within the same
         tolerance. False keeps the uniform mesh of marching tetrahedra.
 
@@ -635,11 +679,19 @@ def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attem
     skel = lattice_of(scene)
     start = time.perf_counter()
     fld = MeshField(skel)
-    out, _ = uniform_mesh(fld, tol, cell, attempts)
-    if compact and out.certified:
-        out = simplified(fld, out, tol) or out
+    # a mesh simplified next certifies its own triangles: the uniform mesh's are certified only
+    # when it is kept
+    out, _ = uniform_mesh(fld, tol, cell, attempts, triangles=not compact)
+    if compact:
+        kept = simplified(fld, out, tol) if out.surface_to_mesh <= tol and len(out.faces) else None
+        if kept is None:
+            first = out.stats["attempts"]
+            out = certify_triangles(fld, out, attempts)
+            if out.stats["attempts"] > first and out.certified:     # smaller cubes: simplified again
+                kept = simplified(fld, out, tol)
+        out = kept or out
     out.stats["seconds"] = time.perf_counter() - start
     return out
 
 
-__all__ = ["mesh_scene", "uniform_mesh", "Band", "SurfaceMesh", "DEFAULT_TOL", "lattice_of"]
+__all__ = ["mesh_scene", "uniform_mesh", "certify_triangles", "Band", "SurfaceMesh", "DEFAULT_TOL", "lattice_of"]
