@@ -566,7 +566,7 @@ def test_uniform_mesh_kept_when_no_simplification_certifies(monkeypatch):
     writes, bound and attempts included, also when the triangles' certificate fails at the
     first cube side (the attempts go on with smaller cubes, as they would have, and their mesh
     is simplified in its turn)."""
-    skel = struts()
+    skel = Skeleton([[0, 0, 0], [0, 0, 1.5], [1.2, 0, 1.5]], [[0, 1], [1, 2]], [[0.5, 0.35], [0.35, 0.3]])
     real_simplified = mesh_surface.simplified
     monkeypatch.setattr(mesh_surface, "simplified", lambda fld, uniform, tol: None)
     plain = mesh_scene(skel, tol=0.1, compact=False)
