@@ -438,7 +438,7 @@ def test_fuzz_supports(kind, st_data):
 MESH_SUFFIX = [".stl", ".ply", ".obj", ".3mf", ".xyz"]
 
 
-@fuzz_settings(12)
+@fuzz_settings(9)
 @given(kind=_run_kind(), st_data=st.data())
 def test_fuzz_mesh(kind, st_data):
     """``mesh``: exit 0, 1 (the bound could not be certified, documented) or 2; a tolerance is

@@ -202,6 +202,11 @@ def struts():
     return Skeleton(nodes, [[0, 1], [1, 2], [2, 3], [1, 4]], rng.uniform(0.25, 0.6, (4, 2)))
 
 
+def two_struts():
+    """Two tapered struts at a bend: about 10,000 band cubes at ``--tol 0.1``, meshed in about a second."""
+    return Skeleton([[0, 0, 0], [0, 0, 1.5], [1.2, 0, 1.5]], [[0, 1], [1, 2]], [[0.5, 0.35], [0.35, 0.3]])
+
+
 def small_lattice():
     return generate_lattice("cubic", (1, 1, 1), 2.0, 0.3)
 
@@ -270,7 +275,7 @@ def test_tip_of_a_needle_is_kept(meshed):
 
 
 def test_threads_change_nothing():
-    skel = struts()
+    skel = two_struts()
     with numba_threads(1):
         a = mesh_scene(skel, tol=0.1)
     with numba_threads(2):
@@ -289,7 +294,7 @@ def test_chunks_change_nothing(monkeypatch):
     """The band is settled, meshed and certified in chunks; chunks of 101 cubes (so that
     chunk borders cut the surface everywhere) give the same vertices, the same faces and
     the same bound as the default chunks."""
-    skel = struts()
+    skel = two_struts()
     a = mesh_scene(skel, tol=0.1, compact=False)
     monkeypatch.setattr(mesh_surface, "CHUNK", 101)
     b = mesh_scene(skel, tol=0.1, compact=False)
@@ -517,7 +522,7 @@ def test_within_holds_every_ball_and_nothing_far(seed, k, scale):
 
 def test_cli_uniform_keeps_the_uniform_mesh(tmp_path):
     scene = tmp_path / "s.json"
-    struts().save(scene)
+    two_struts().save(scene)
     outs = {}
     for flag in ([], ["--uniform"]):
         out = tmp_path / f"m{len(flag)}.ply"
@@ -525,7 +530,7 @@ def test_cli_uniform_keeps_the_uniform_mesh(tmp_path):
         assert res.exit_code == 0, res.output
         assert ("simplified from" in res.output) == (not flag)
         outs[len(flag)] = trimesh.load(out, process=False)
-    assert len(outs[1].faces) == len(mesh_scene(struts(), tol=0.1, compact=False).faces)
+    assert len(outs[1].faces) == len(mesh_scene(two_struts(), tol=0.1, compact=False).faces)
     assert len(outs[0].faces) * 10 < len(outs[1].faces)
 
 
@@ -566,7 +571,7 @@ def test_uniform_mesh_kept_when_no_simplification_certifies(monkeypatch):
     writes, bound and attempts included, also when the triangles' certificate fails at the
     first cube side (the attempts go on with smaller cubes, as they would have, and their mesh
     is simplified in its turn)."""
-    skel = Skeleton([[0, 0, 0], [0, 0, 1.5], [1.2, 0, 1.5]], [[0, 1], [1, 2]], [[0.5, 0.35], [0.35, 0.3]])
+    skel = two_struts()
     real_simplified = mesh_surface.simplified
     monkeypatch.setattr(mesh_surface, "simplified", lambda fld, uniform, tol: None)
     plain = mesh_scene(skel, tol=0.1, compact=False)

@@ -161,14 +161,14 @@ def test_error_time_contours_compares_the_two_routes_on_one_grid(tmp_path):
     from validation.error_time import main as error_time
 
     out = tmp_path / "et.json"
-    assert error_time(["--model", "cubic_2x2x2", "--contours", "24", "12", "--ref-pixels", "96",
+    assert error_time(["--model", "cubic_2x2x2", "--contours", "16", "8", "--ref-pixels", "64",
                        "--json", str(out)]) == 0
     res = json.loads(out.read_text())
     rows = res["rows"]
     assert [(r["method"], r["tol"]) for r in rows] == [(m, t) for t in (1e-3, 1e-2, 1e-4)
                                                       for m in ("interval", "guaranteed")]
-    assert {(r["pixels"], r["layers"]) for r in rows} == {(24, 12)}
-    assert res["reference"]["pixels"] == 96 and "--contours" in res["command"]
+    assert {(r["pixels"], r["layers"]) for r in rows} == {(16, 8)}
+    assert res["reference"]["pixels"] == 64 and "--contours" in res["command"]
     assert all(np.isfinite(r["error_layer"]) and r["seconds"] > 0 and r["evaluations"] > 0 for r in rows)
     assert all(r["contour_vertices"] > 0 for r in rows)
 
