@@ -467,6 +467,35 @@ def test_uniform_triangles_held_where_the_first_simplification_fails(meshed):
     assert len(m.faces) < 0.8 * len(half)
 
 
+def test_a_simplification_with_no_fewer_triangles_than_the_next_is_not_certified(monkeypatch):
+    """Where manifold3d leaves at least as many triangles at a tolerance as at the next, smaller
+    one (dense lattices), that simplification is passed over without being certified: here the
+    first tolerance is made to return a finer simplification (an eighth of it), which alone
+    would certify; the mesh kept is the second tolerance's, with fewer triangles."""
+    skel = two_struts()
+    real = compact.simplify
+    first = []
+
+    def finer_first(vertices, faces, eps, hold=None):
+        if not first or first[0] == eps:
+            first[:] = [eps]
+            return real(vertices, faces, eps / 8.0, hold)
+        return real(vertices, faces, eps, hold)
+
+    monkeypatch.setattr(compact, "FRACTIONS", (0.125, 0.0625))          # each certifies on its own
+    monkeypatch.setattr(compact, "simplify", finer_first)
+    m = mesh_scene(skel, tol=0.1)
+    rows = m.stats["simplify"]
+    assert rows[0]["eps"] == first[0] and rows[0].get("dominated") and "mesh_to_surface" not in rows[0]
+    assert rows[1]["triangles"] < rows[0]["triangles"] and rows[1]["kept"] and m.certified
+    assert len(m.faces) == rows[1]["triangles"]
+    monkeypatch.setattr(compact, "simplify", lambda v, f, eps, hold=None: real(v, f, eps / 8.0 if eps == first[0]
+                                                                                else eps, hold))
+    monkeypatch.setattr(compact, "FRACTIONS", compact.FRACTIONS[:1])      # no next one: certified as before
+    alone = mesh_scene(skel, tol=0.1)
+    assert alone.certified and len(alone.faces) == rows[0]["triangles"] > len(m.faces)
+
+
 def test_a_certification_can_stop_at_its_first_failure(meshed, monkeypatch):
     """``triangle_bounds(..., first_failure=True)`` (a last held round's): the same bounds when
     every triangle certifies; when some do not, it stops after the first batch holding one,

@@ -19,7 +19,8 @@ fewer, larger triangles. Nothing is taken on trust from the simplifier;
   is unchanged).
 
 When the certified bound exceeds the tolerance, a smaller simplification
-tolerance is tried; when none certifies, the uniform mesh stays.
+tolerance is tried (one whose simplification has no fewer triangles than the
+next one's is passed over); when none certifies, the uniform mesh stays.
 """
 from __future__ import annotations
 
@@ -242,25 +243,53 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
     Where a simplification is not certified (uniform triangles too far from it, or its own
     triangles not certified on the surface), the uniform triangles near those places are held
     as they are and the same tolerance is tried again, up to ``hold_rounds`` times, before
-    a smaller one: the rest of the mesh keeps the larger triangles."""
+    a smaller one: the rest of the mesh keeps the larger triangles.
+
+    The next tolerance's simplification is made before one is checked: manifold3d's edge
+    collapses can leave more triangles at a larger tolerance (dense lattices), and a
+    simplification with no fewer triangles than the next one's is passed over unchecked
+    (its row says ``dominated``)."""
     if not budget > 0.0 or not len(uniform.faces):
         return None
     tried = []
     v0, f0 = uniform.vertices, uniform.faces
     centroids = None
-    for frac in FRACTIONS:
+    ahead = {}      # the next tolerance's simplification (nothing held), made to compare with this one's
+
+    def plain(i):
+        if i not in ahead:
+            start = time.perf_counter()
+            ahead[i] = simplify(v0, f0, FRACTIONS[i] * budget) + (time.perf_counter() - start,)
+        return ahead[i]
+
+    for i, frac in enumerate(FRACTIONS):
         eps = frac * budget
         hold = np.zeros(len(f0), bool)
         done = False
         for rnd in range(hold_rounds + 1):
-            start = time.perf_counter()
-            v1, f1 = simplify(v0, f0, eps, hold)
+            if hold.any():
+                start = time.perf_counter()
+                v1, f1 = simplify(v0, f0, eps, hold)
+            else:                   # made now, or ahead while the last tolerance was looked at
+                v1, f1, took = plain(i)
+                del ahead[i]
+                start = time.perf_counter() - took
             row = {"eps": eps, "triangles": int(len(f1)), "held": int(hold.sum()), "kept": False}
             tried.append(row)
             if len(f1) > GAIN * len(f0) or not len(f1):
                 # a smaller tolerance saves fewer triangles still; with triangles held, it may not
                 done = not hold.any()
                 break
+            if rnd == 0 and i + 1 < len(FRACTIONS):
+                mark = time.perf_counter()
+                nxt = len(plain(i + 1)[1])
+                start += time.perf_counter() - mark         # counted in the next tolerance's row
+                if nxt <= len(f1):
+                    # manifold3d's edge collapses can leave more triangles at a larger tolerance (dense
+                    # lattices): a simplification with no fewer triangles than the next one's, and a
+                    # larger distance to the uniform mesh, is not certified
+                    row.update(dominated=True, seconds=time.perf_counter() - start)
+                    break
             d01 = mesh_to_mesh(v0, f0, v1, f1, reach - uniform.surface_to_mesh if target is None else target,
                                reach, wedges)
             b1 = uniform.surface_to_mesh + float(d01.max())
