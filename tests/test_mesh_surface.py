@@ -467,33 +467,56 @@ def test_uniform_triangles_held_where_the_first_simplification_fails(meshed):
     assert len(m.faces) < 0.8 * len(half)
 
 
-def test_a_simplification_with_no_fewer_triangles_than_the_next_is_not_certified(monkeypatch):
+def _patched_simplify(monkeypatch, scale, grow=None):
+    """``compact.simplify`` with the tolerance of each call scaled by ``scale[k]``, k the
+    fraction of the budget it is called at (``compact.FRACTIONS`` = 1/8, 1/16 here), and the
+    result grown ``grow[k]`` times about the origin; the calls are recorded as (k, held
+    triangles)."""
+    real, calls = compact.simplify, []
+    monkeypatch.setattr(compact, "FRACTIONS", (0.125, 0.0625))
+    eps_of = {}
+
+    def patched(vertices, faces, eps, hold=None):
+        k = eps_of.setdefault(eps, len(eps_of))
+        calls.append((k, 0 if hold is None else int(hold.sum())))
+        v, f = real(vertices, faces, eps * scale[k], hold)
+        return v * (grow or {}).get(k, 1.0), f
+
+    monkeypatch.setattr(compact, "simplify", patched)
+    return calls
+
+
+def test_a_simplification_with_no_fewer_triangles_than_the_next_is_passed_over(monkeypatch):
     """Where manifold3d leaves at least as many triangles at a tolerance as at the next, smaller
-    one (dense lattices), that simplification is passed over without being certified: here the
-    first tolerance is made to return a finer simplification (an eighth of it), which alone
-    would certify; the mesh kept is the second tolerance's, with fewer triangles."""
+    one (dense lattices), the next is checked first, with the simplification made to compare:
+    here the first tolerance is made to return a finer simplification (an eighth of it), which
+    would certify; it is passed over unchecked and the next one's, with fewer triangles, kept.
+    With no next tolerance, the same finer simplification is checked and kept."""
     skel = two_struts()
-    real = compact.simplify
-    first = []
-
-    def finer_first(vertices, faces, eps, hold=None):
-        if not first or first[0] == eps:
-            first[:] = [eps]
-            return real(vertices, faces, eps / 8.0, hold)
-        return real(vertices, faces, eps, hold)
-
-    monkeypatch.setattr(compact, "FRACTIONS", (0.125, 0.0625))          # each certifies on its own
-    monkeypatch.setattr(compact, "simplify", finer_first)
+    calls = _patched_simplify(monkeypatch, {0: 1 / 8, 1: 1.0})
     m = mesh_scene(skel, tol=0.1)
     rows = m.stats["simplify"]
-    assert rows[0]["eps"] == first[0] and rows[0].get("dominated") and "mesh_to_surface" not in rows[0]
+    assert calls == [(0, 0), (1, 0)]                              # each simplified once, nothing held
+    assert rows[0].get("dominated") and "uniform_to_compact" not in rows[0] and "mesh_to_surface" not in rows[0]
     assert rows[1]["triangles"] < rows[0]["triangles"] and rows[1]["kept"] and m.certified
-    assert len(m.faces) == rows[1]["triangles"]
-    monkeypatch.setattr(compact, "simplify", lambda v, f, eps, hold=None: real(v, f, eps / 8.0 if eps == first[0]
-                                                                                else eps, hold))
-    monkeypatch.setattr(compact, "FRACTIONS", compact.FRACTIONS[:1])      # no next one: certified as before
+    assert len(rows) == 2 and len(m.faces) == rows[1]["triangles"]
+    monkeypatch.setattr(compact, "FRACTIONS", compact.FRACTIONS[:1])
     alone = mesh_scene(skel, tol=0.1)
     assert alone.certified and len(alone.faces) == rows[0]["triangles"] > len(m.faces)
+
+
+def test_a_tolerance_passed_over_is_checked_when_the_next_is_not_kept(monkeypatch):
+    """The first tolerance passed over (as above) while the next one's simplification is not
+    certified (grown by a fifth: farther from the uniform mesh than the whole tolerance,
+    nothing held): the first is then simplified again, checked and kept."""
+    skel = two_struts()
+    calls = _patched_simplify(monkeypatch, {0: 1 / 8, 1: 1.0}, grow={1: 1.2})
+    m = mesh_scene(skel, tol=0.1)
+    rows = m.stats["simplify"]
+    assert calls == [(0, 0), (1, 0), (0, 0)]
+    assert rows[0].get("dominated") and not rows[1]["kept"] and rows[1]["uniform_to_compact"] > 0.1
+    assert rows[2]["eps"] == rows[0]["eps"] and rows[2]["kept"] and m.certified
+    assert len(m.faces) == rows[2]["triangles"] == rows[0]["triangles"]
 
 
 def test_a_certification_can_stop_at_its_first_failure(meshed, monkeypatch):

@@ -20,7 +20,7 @@ fewer, larger triangles. Nothing is taken on trust from the simplifier;
 
 When the certified bound exceeds the tolerance, a smaller simplification
 tolerance is tried (one whose simplification has no fewer triangles than the
-next one's is passed over); when none certifies, the uniform mesh stays.
+next one's is tried last); when none certifies, the uniform mesh stays.
 """
 from __future__ import annotations
 
@@ -67,9 +67,15 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, eps: float, hold: np.ndarr
     face_id = None
     if hold is not None and hold.any():
         face_id = np.where(hold, 1 + np.arange(len(faces), dtype=np.uint64), np.uint64(0))
-    mesh = manifold3d.Mesh64(vert_properties=np.ascontiguousarray(vertices, np.float64),
-                             tri_verts=np.ascontiguousarray(faces, np.uint64), face_id=face_id)
-    out = manifold3d.Manifold(mesh).simplify(float(eps)).to_mesh64()
+    solid = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.ascontiguousarray(vertices, np.float64),
+                                                  tri_verts=np.ascontiguousarray(faces, np.uint64),
+                                                  face_id=face_id))
+    # the input's copies are freed before the simplification makes its own (the peak of a dense lattice's job)
+    face_id = None
+    result = solid.simplify(float(eps))
+    del solid
+    out = result.to_mesh64()
+    del result
     v = np.array(out.vert_properties, dtype=np.float64)[:, :3]
     return np.ascontiguousarray(v), np.array(out.tri_verts, dtype=np.int64)
 
@@ -247,8 +253,8 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
 
     The next tolerance's simplification is made before one is checked: manifold3d's edge
     collapses can leave more triangles at a larger tolerance (dense lattices), and a
-    simplification with no fewer triangles than the next one's is passed over unchecked
-    (its row says ``dominated``)."""
+    simplification with no fewer triangles than the next one's is passed over (its row says
+    ``dominated``), to be checked only when no smaller tolerance is kept."""
     if not budget > 0.0 or not len(uniform.faces):
         return None
     tried = []
@@ -262,10 +268,14 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
             ahead[i] = simplify(v0, f0, FRACTIONS[i] * budget) + (time.perf_counter() - start,)
         return ahead[i]
 
-    for i, frac in enumerate(FRACTIONS):
-        eps = frac * budget
+    passed = []     # tolerances passed over for the next one's simplification
+
+    def rounds(i, look_ahead):
+        """The rounds of tolerance ``i``: the mesh kept, or None and whether smaller tolerances are
+        not worth trying."""
+        nonlocal centroids
+        eps = FRACTIONS[i] * budget
         hold = np.zeros(len(f0), bool)
-        done = False
         for rnd in range(hold_rounds + 1):
             if hold.any():
                 start = time.perf_counter()
@@ -276,20 +286,21 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
                 start = time.perf_counter() - took
             row = {"eps": eps, "triangles": int(len(f1)), "held": int(hold.sum()), "kept": False}
             tried.append(row)
-            if len(f1) > GAIN * len(f0) or not len(f1):
-                # a smaller tolerance saves fewer triangles still; with triangles held, it may not
-                done = not hold.any()
-                break
-            if rnd == 0 and i + 1 < len(FRACTIONS):
+            small = 0 < len(f1) <= GAIN * len(f0)
+            if rnd == 0 and look_ahead and i + 1 < len(FRACTIONS):
                 mark = time.perf_counter()
                 nxt = len(plain(i + 1)[1])
                 start += time.perf_counter() - mark         # counted in the next tolerance's row
-                if nxt <= len(f1):
+                if 0 < nxt <= len(f1):
                     # manifold3d's edge collapses can leave more triangles at a larger tolerance (dense
-                    # lattices): a simplification with no fewer triangles than the next one's, and a
-                    # larger distance to the uniform mesh, is not certified
+                    # lattices): the next tolerance is checked first, this one only if no other is kept
                     row.update(dominated=True, seconds=time.perf_counter() - start)
-                    break
+                    if small:
+                        passed.append(i)
+                    return None, False
+            if not small:
+                # a smaller tolerance saves fewer triangles still; with triangles held, it may not
+                return None, not hold.any()
             d01 = mesh_to_mesh(v0, f0, v1, f1, reach - uniform.surface_to_mesh if target is None else target,
                                reach, wedges)
             b1 = uniform.surface_to_mesh + float(d01.max())
@@ -304,15 +315,13 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
                     stats = dict(uniform.stats, uniform_triangles=int(len(f0)),
                                  uniform_surface_to_mesh=uniform.surface_to_mesh, simplify=tried,
                                  triangles=int(len(f1)))
-                    return SurfaceMesh(v1, f1, tol, max(a1, b1), a1, b1, uniform.cell, stats)
+                    return SurfaceMesh(v1, f1, tol, max(a1, b1), a1, b1, uniform.cell, stats), True
             if rnd == hold_rounds:
                 break
             if b1 <= tol:
                 where = _balls(v1[f1[~(a <= tol)]], 2.0 * eps)
-            elif float(d01.max()) <= tol:
+            else:
                 where = _balls(v0[f0[~(uniform.surface_to_mesh + d01 <= tol)]], 2.0 * eps)
-            else:       # farther than the whole tolerance: too coarse there to hold (a smaller one next)
-                break
             if centroids is None:
                 centroids = v0[f0].mean(axis=1)
             more = within(centroids, *where) & ~hold
@@ -321,8 +330,18 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
             if not more.any() or int(hold.sum() + more.sum()) > HOLD_SHARE * len(f1):
                 break
             hold |= more
-        if done:
+        return None, False
+
+    for i in range(len(FRACTIONS)):
+        kept, stop = rounds(i, True)
+        if kept is not None:
+            return kept
+        if stop:
             break
+    for i in passed:        # the tolerances passed over, when none after them was kept
+        kept, _ = rounds(i, False)
+        if kept is not None:
+            return kept
     uniform.stats["simplify"] = tried
     return None
 
