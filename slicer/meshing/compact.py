@@ -287,7 +287,7 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
             row = {"eps": eps, "triangles": int(len(f1)), "held": int(hold.sum()), "kept": False}
             tried.append(row)
             small = 0 < len(f1) <= GAIN * len(f0)
-            if rnd == 0 and look_ahead and i + 1 < len(FRACTIONS):
+            if rnd == 0 and look_ahead and i + 1 < len(FRACTIONS) and len(f1):
                 mark = time.perf_counter()
                 nxt = len(plain(i + 1)[1])
                 start += time.perf_counter() - mark         # counted in the next tolerance's row
@@ -321,7 +321,10 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
             if b1 <= tol:
                 where = _balls(v1[f1[~(a <= tol)]], 2.0 * eps)
             else:
-                where = _balls(v0[f0[~(uniform.surface_to_mesh + d01 <= tol)]], 2.0 * eps)
+                bad = ~(uniform.surface_to_mesh + d01 <= tol)
+                if int((hold | bad).sum()) > HOLD_SHARE * len(f1):     # all held below: too many
+                    break
+                where = _balls(v0[f0[bad]], 2.0 * eps)
             if centroids is None:
                 centroids = v0[f0].mean(axis=1)
             more = within(centroids, *where) & ~hold
@@ -338,6 +341,7 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
             return kept
         if stop:
             break
+    ahead.clear()
     for i in passed:        # the tolerances passed over, when none after them was kept
         kept, _ = rounds(i, False)
         if kept is not None:
