@@ -84,16 +84,19 @@ def run(quick, dense=False):
                     "seconds": round(secs, 2), "bound": m.bound,
                     "measured": measured_error(skel, m.vertices, m.faces),
                     "attempts": m.stats["attempts"], "band_cubes": m.stats["band_cubes"],
-                    "uniform_triangles": m.stats.get("uniform_triangles", int(len(m.faces)))}
+                    "uniform_triangles": m.stats.get("uniform_triangles", int(len(m.faces))),
+                    "finer_cubes": sum(level["cubes"] for level in m.stats.get("finer", []))}
             rows.append(ours)
             print(ours, file=sys.stderr, flush=True)
+        # level sets from the finest cube side used (a graded mesh's finer cubes)
+        finest = None if m is None else min([m.cell] + [level["cube"] for level in m.stats.get("finer", [])])
         for k in () if m is None else (4.0, 8.0) if large else (1.5, 2.5, 4.0, 8.0):
             t0 = time.perf_counter()
-            man, info = reference_mesh(skel, m.cell * k, with_error=False)
+            man, info = reference_mesh(skel, finest * k, with_error=False)
             secs = time.perf_counter() - t0
             mesh = man.to_mesh64()
             v, f = np.asarray(mesh.vert_properties)[:, :3].astype(np.float64), np.asarray(mesh.tri_verts)
-            rows.append({"scene": name, "method": "uniform", "tol": None, "cell": m.cell * k,
+            rows.append({"scene": name, "method": "uniform", "tol": None, "cell": finest * k,
                          "triangles": int(len(f)), "seconds": round(secs, 2), "bound": None,
                          "measured": measured_error(skel, v, f)})
             print(rows[-1], file=sys.stderr, flush=True)

@@ -70,11 +70,12 @@ def point_triangle_distance(points, tri):
         gap = np.maximum(np.maximum(lo - p, p - hi), 0.0)
         box = np.linalg.norm(gap, axis=1)
         cand = tri[box <= np.sort(box)[min(len(box) - 1, 50)] + 0.05]
-        best[i] = _distances(p, cand).min()
+        best[i] = point_to_triangles(p, cand).min()
     return best
 
 
-def _distances(p, tri):
+def point_to_triangles(p, tri):
+    """Distance from the point p (3,) to each of the triangles (t, 3, 3), mm."""
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     n = np.cross(b - a, c - a)
     nn = np.einsum("ij,ij->i", n, n)

@@ -26,7 +26,7 @@ from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mesh_checks import mesh_points_near_surface, point_triangle_distance, surface_points_on_lines
+from mesh_checks import mesh_points_near_surface, point_to_triangles, point_triangle_distance, surface_points_on_lines
 from parts_helpers import winding_number
 from slicer import Skeleton, generate_lattice
 from slicer._kernels.runtime.launch import numba_threads
@@ -343,6 +343,20 @@ def test_cli_writes_and_reports_the_bound(tmp_path):
     assert mesh.GetTriangleCount() > 100 and mesh.IsManifoldAndOriented()
 
 
+def test_cli_says_where_its_cubes_are_finer(tmp_path):
+    """The random struts at 0.06 mm: the first cube side fails where struts meet, and finer cubes
+    certify those places; the command says how many, level by level, and the mesh is certified."""
+    scene = tmp_path / "s.json"
+    struts().save(scene)
+    res = CliRunner().invoke(main, ["mesh", str(scene), "-o", str(tmp_path / "m.stl"), "--tol", "0.06"])
+    assert res.exit_code == 0, res.output
+    assert "1 attempt(s) (finer where struts meet: " in res.output
+    levels = res.output.split("finer where struts meet: ")[1].split(")")[0].split(", ")
+    cubes = [int(level.split(" of ")[0].replace(",", "")) for level in levels]
+    assert cubes and min(cubes) > 0
+    assert float(res.output.split("certified Hausdorff bound ")[1].split()[0]) <= 0.06
+
+
 @pytest.mark.parametrize("suffix", [".stl", ".ply", ".obj", ".3mf"])
 def test_every_format_reads_back(meshed, tmp_path, suffix):
     _, _, m = meshed("struts")
@@ -392,7 +406,6 @@ def test_cli_beams_read_back(tmp_path):
 def test_point_triangle_distance_matches_the_projection_reference():
     """The kernel's closest-point distance against tests/mesh_checks.py's (projection onto the
     plane, else the nearest edge), on random, thin and degenerate triangles."""
-    from mesh_checks import _distances as reference
 
     rng = np.random.default_rng(4)
     tri = rng.normal(size=(300, 3, 3))
@@ -402,7 +415,7 @@ def test_point_triangle_distance_matches_the_projection_reference():
     for t in tri:
         for p in rng.normal(scale=2.0, size=(20, 3)):
             got = math.sqrt(point_triangle_sq(tuple(p), tuple(t[0]), tuple(t[1]), tuple(t[2])))
-            want = reference(p, t[None])[0]
+            want = point_to_triangles(p, t[None])[0]
             assert abs(got - want) <= 1e-9 * (1.0 + want), (t, p, got, want)
 
 
@@ -434,9 +447,13 @@ def test_mesh_to_mesh_bounds_hold_and_are_tight(seed):
 
 def test_compact_mesh_is_far_smaller_and_certified(meshed):
     """The struts' mesh is the simplified one: far fewer triangles than the certified uniform
-    mesh it came from, within the tolerance both ways (the acceptance checks above ran on it)."""
+    mesh (``--uniform``), within the tolerance both ways (the acceptance checks above ran on
+    it). Its uniform mesh is graded: the cubes its first cube side could not certify are
+    certified by finer meshes."""
     skel, tol, m = meshed("struts")
-    assert m.stats["uniform_triangles"] >= 20 * len(m.faces)
+    assert m.stats["attempts"] == 1 and m.stats["finer"] and m.stats["uncertified_cubes"] > 0
+    u = mesh_scene(skel, tol=tol, compact=False)
+    assert u.stats["attempts"] > 1 and len(u.faces) >= 20 * len(m.faces)
     assert m.certified and m.bound <= tol
     # surface to mesh: the uniform mesh's side plus its distance to the simplified one
     assert m.surface_to_mesh >= m.stats["uniform_surface_to_mesh"] > 0
@@ -445,10 +462,77 @@ def test_compact_mesh_is_far_smaller_and_certified(meshed):
     # surface to mesh adds the uniform mesh's side and its distance to the simplified one
     assert m.surface_to_mesh >= kept[0]["uniform_to_compact"]
     # it is not the uniform mesh's vertex set: the simplified mesh keeps a subset of it
-    u = mesh_scene(skel, tol=tol, compact=False)
+    u, _ = mesh_surface.uniform_mesh(MeshField(skel), tol, None, mesh_surface.ATTEMPTS, triangles=False, graded=True)
     assert len(u.faces) == m.stats["uniform_triangles"]
     common = {tuple(v) for v in u.vertices}
     assert all(tuple(v) in common for v in m.vertices)
+
+
+def test_finer_cubes_cover_every_cube_the_band_could_not_certify(monkeypatch):
+    """A graded uniform mesh (made for simplifying): every band cube is certified at its own
+    side or cut into eight, each of which is settled by the field's bounds, certified within
+    FINER_SHARE of the tolerance, or cut again; a finer cube certified has its 26 neighbours
+    meshed (or settled), as the certificate's argument needs; and every surface point found on
+    random lines is within its bound of some face of the mesh or of a patch."""
+    skel, tol = struts(), 0.06
+    fld = MeshField(skel)
+    seen = {}
+    real_band, real_finer, real_s2m = mesh_surface._mesh_band, mesh_surface._finer, mesh_surface._surface_to_mesh
+
+    def band_spy(*args):
+        out = real_band(*args)
+        seen["coarse"] = (args[1], args[2], out[4])         # grid, band, the cubes' distances
+        return out
+
+    def finer_spy(fld, grid, band, bad, tol, stats):
+        seen["bad"] = bad.copy()
+        seen["levels"] = []
+        return real_finer(fld, grid, band, bad, tol, stats)
+
+    def s2m_spy(fld, grid, band, g, Hr, worst, tol, which=None):
+        d = real_s2m(fld, grid, band, g, Hr, worst, tol, which)
+        if which is not None:
+            seen["levels"].append((grid, band.copy(), which.copy(), d.copy()))
+        return d
+
+    monkeypatch.setattr(mesh_surface, "_mesh_band", band_spy)
+    monkeypatch.setattr(mesh_surface, "_finer", finer_spy)
+    monkeypatch.setattr(mesh_surface, "_surface_to_mesh", s2m_spy)
+    u, _ = mesh_surface.uniform_mesh(fld, tol, None, mesh_surface.ATTEMPTS, triangles=False, graded=True)
+    aim = mesh_surface.FINER_SHARE * tol
+    grid, band, d_cell = seen["coarse"]
+    bad = seen["bad"]
+    assert u.patches and len(u.patches) == len(seen["levels"]) and bad.any()
+    assert np.array_equal(bad, ~(d_cell <= aim))
+    corners = mesh_surface._CORNERS
+    todo = {tuple(c) for c in band[bad]}
+    for fine, fband, inner, d in seen["levels"]:
+        where = {tuple(c): k for k, c in enumerate(fband)}
+        kids = np.array([2 * np.array(c) + k for c in sorted(todo) for k in corners])
+        ins, out = mesh_surface.settle(fld, fine.centres(kids, 0), 0.5 * math.sqrt(3.0) * fine.h)
+        nxt = set()
+        for kid, settled in zip(map(tuple, kids), ins | out):
+            k = where.get(kid)
+            assert settled or (k is not None and inner[k]), kid           # every unsettled half is certified here
+            if k is not None and not d[k] <= aim:
+                nxt.add(kid)
+        # the neighbours of the halves certified are meshed or settled
+        ok = np.flatnonzero(inner & (d <= aim))
+        steps = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
+        around = np.unique((fband[ok][:, None, :] + steps[None]).reshape(-1, 3), axis=0)
+        missing = np.array([c for c in around if tuple(c) not in where]).reshape(-1, 3)
+        ins, out = mesh_surface.settle(fld, fine.centres(missing, 0), 0.5 * math.sqrt(3.0) * fine.h)
+        assert (ins | out).all()
+        todo = nxt
+    assert not todo
+    # every surface point is within its bound of a face of the mesh or of a patch
+    faces = [(u.vertices[u.faces], u.face_bounds)] + [(v[f], b) for v, f, b in u.patches]
+    surf = surface_points_on_lines(skel, n_lines=40)
+    assert len(surf) >= 20
+    for p in surf:
+        slack = min(float((point_to_triangles(p, tri) - b).min()) for tri, b in faces)
+        assert slack <= 0.0, (p, slack)
+    assert max(float(b.max()) for _, b in faces) <= u.surface_to_mesh <= aim
 
 
 def test_uniform_triangles_held_where_the_first_simplification_fails(meshed):
@@ -628,7 +712,9 @@ def test_uniform_mesh_kept_when_no_simplification_certifies(monkeypatch):
     real_simplified = mesh_surface.simplified
     monkeypatch.setattr(mesh_surface, "simplified", lambda fld, uniform, tol: None)
     plain = mesh_scene(skel, tol=0.1, compact=False)
-    _same_mesh(mesh_scene(skel, tol=0.1), plain)
+    graded = mesh_scene(skel, tol=0.1)
+    assert graded.stats["finer"]        # its first uniform mesh was graded, and is not written
+    _same_mesh(graded, plain)
     real = mesh_surface._triangles_bound
 
     def first_fails(fld, verts, faces, tol, resid, stats):

@@ -38,6 +38,15 @@ class SurfaceMesh:
         Side ``h`` of the band's cubes.
     stats : dict
         Counts (band cubes, settled cubes, field evaluations), seconds, attempts.
+    patches : list of ((p, 3) float64 mm, (q, 3) int64, (q,) float64 mm)
+        Finer meshes (vertices, faces, the faces' bounds) where the cubes of side ``cell``
+        could not be certified (a uniform mesh made for simplifying,
+        :func:`slicer.meshing.surface.uniform_mesh`): every surface point is within
+        ``surface_to_mesh`` of the mesh and these together. Empty for a mesh certified on its own.
+    face_bounds : (t,) float64, mm, optional
+        With patches: per face, a bound that holds for the surface points it serves: every
+        surface point is within some face's bound of that face (of the mesh or of a patch).
+        None: ``surface_to_mesh`` for every face.
     """
 
     vertices: np.ndarray
@@ -48,6 +57,8 @@ class SurfaceMesh:
     surface_to_mesh: float
     cell: float
     stats: dict = field(default_factory=dict)
+    patches: list = field(default_factory=list, repr=False)
+    face_bounds: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def certified(self) -> bool:

@@ -244,7 +244,8 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
     (pieces split while above ``target``, by default ``reach − uniform.surface_to_mesh``; nothing
     farther than ``reach`` found; ``wedges`` as :func:`mesh_to_mesh`'s, None by default: a
     lattice's); mesh to surface by ``mesh_to_surface(v1, f1, row)`` (a bound per triangle, mm;
-    ``row`` takes its counts).
+    ``row`` takes its counts). Where ``uniform`` has finer patches (:func:`slicer.meshing.surface.uniform_mesh`,
+    ``graded``), their distances to the result count too.
 
     Where a simplification is not certified (uniform triangles too far from it, or its own
     triangles not certified on the surface), the uniform triangles near those places are held
@@ -259,6 +260,9 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
         return None
     tried = []
     v0, f0 = uniform.vertices, uniform.faces
+    patches = [(vp, fp, sp) for vp, fp, sp in uniform.patches if len(fp)]
+    # the surface points a uniform face serves are within its bound of it (one bound for all, or each face's)
+    s0 = np.full(len(f0), uniform.surface_to_mesh) if uniform.face_bounds is None else uniform.face_bounds
     centroids = None
     ahead = {}      # the next tolerance's simplification (nothing held), made to compare with this one's
 
@@ -301,10 +305,13 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
             if not small:
                 # a smaller tolerance saves fewer triangles still; with triangles held, it may not
                 return None, not hold.any()
-            d01 = mesh_to_mesh(v0, f0, v1, f1, reach - uniform.surface_to_mesh if target is None else target,
-                               reach, wedges)
-            b1 = uniform.surface_to_mesh + float(d01.max())
-            row.update(uniform_to_compact=float(d01.max()), seconds=time.perf_counter() - start)
+            aim = reach - uniform.surface_to_mesh if target is None else target
+            d01 = mesh_to_mesh(v0, f0, v1, f1, aim, reach, wedges)
+            # the surface is within surface_to_mesh of the uniform mesh and its finer patches together
+            d_patches = [mesh_to_mesh(vp, fp, v1, f1, aim, reach, wedges) for vp, fp, _ in patches]
+            far = max([float(d01.max())] + [float(d.max()) for d in d_patches])
+            b1 = max([float((s0 + d01).max())] + [float((sp + d).max()) for (_, _, sp), d in zip(patches, d_patches)])
+            row.update(uniform_to_compact=far, seconds=time.perf_counter() - start)
             if b1 <= tol:
                 # a round that holds nothing more after it only needs to know whether it certifies
                 row["first_failure"] = rnd == hold_rounds and rnd > 0
@@ -321,10 +328,14 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
             if b1 <= tol:
                 where = _balls(v1[f1[~(a <= tol)]], 2.0 * eps)
             else:
-                bad = ~(uniform.surface_to_mesh + d01 <= tol)
-                if int((hold | bad).sum()) > HOLD_SHARE * len(f1):     # all held below: too many
+                bad = ~(s0 + d01 <= tol)
+                far_p = [(vp, fp[~(sp + d <= tol)]) for (vp, fp, sp), d in zip(patches, d_patches)]
+                # a finer patch's triangle has about a quarter of a uniform one's area
+                n_far = int((hold | bad).sum()) + sum(len(f) for _, f in far_p) / 4.0
+                if n_far > HOLD_SHARE * len(f1):     # all held below: too many
                     break
-                where = _balls(v0[f0[bad]], 2.0 * eps)
+                balls = [_balls(v[f], 2.0 * eps) for v, f in [(v0, f0[bad])] + far_p if len(f)]
+                where = tuple(np.concatenate(parts) for parts in zip(*balls)) if balls else (np.zeros((0, 3)), np.zeros(0))
             if centroids is None:
                 centroids = v0[f0].mean(axis=1)
             more = within(centroids, *where) & ~hold
@@ -362,7 +373,21 @@ def compact(fld, uniform, tol: float):
         row["certified_pieces"] = int(n_pieces)
         return d
 
-    return simplified(uniform, tol, reach - uniform.surface_to_mesh, reach, on_field)
+    return simplified(uniform, tol, reach - typical_bound(uniform), reach, on_field)
+
+
+#: the quantile of the faces' bounds that sets a graded uniform mesh's simplification budget
+BUDGET_QUANTILE = 0.5
+
+
+def typical_bound(uniform) -> float:
+    """The surface-to-mesh bound the simplification's budget is set from (mm): the mesh's, or
+    with bounds per face (a graded uniform mesh), their :data:`BUDGET_QUANTILE` over its faces
+    and its patches' (the faces whose bound leaves less are held where they need it)."""
+    if uniform.face_bounds is None:
+        return uniform.surface_to_mesh
+    every = np.concatenate([uniform.face_bounds] + [patch[2] for patch in uniform.patches])
+    return float(np.quantile(every, BUDGET_QUANTILE)) if len(every) else uniform.surface_to_mesh
 
 
 __all__ = ["compact", "simplified", "simplify", "within", "mesh_to_mesh", "triangle_bounds"]

@@ -41,7 +41,10 @@
    mesh is within ``δ_C / g_C`` of x.
    The bound is the largest of these distances; it is certified only when
    every one is finite and at most ``tol``, else ``h`` shrinks and the mesh
-   is made again.
+   is made again. A mesh to be simplified shrinks it only where the cubes
+   fail (:func:`_finer`): those cubes, cut into eight, are meshed and
+   certified on a finer grid of their own, whose mesh (a *patch*) the
+   simplified mesh's certificate counts too.
 
 Everything is float64; the field's bounds carry the relative slack of
 :mod:`slicer._kernels.contours.cellbounds`. Degree-2 kernels (no curvature bound)
@@ -427,15 +430,18 @@ def _cube_distances(fld: MeshField, grid: _Grid, band: np.ndarray, g: np.ndarray
 
 
 def _surface_to_mesh(fld: MeshField, grid: _Grid, band: np.ndarray, g: np.ndarray, Hr: np.ndarray, worst: np.ndarray,
-                     tol: float) -> np.ndarray:
-    """:func:`_cube_distances` of every band cube; where a cube is not certified within
-    ``tol``, its block's curvature bounds are taken again over half cubes, then quarter
-    cubes (``Hr`` is updated in place), and the cube certified again with them, as long as
-    such cubes are at most :data:`SPLIT_SHARE` of the band (else the attempt fails at once)."""
-    d = _cube_distances(fld, grid, band, g, Hr, worst, tol)
+                     tol: float, which: np.ndarray | None = None) -> np.ndarray:
+    """:func:`_cube_distances` of every band cube (or of the cubes ``which``; the others get 0);
+    where a cube is not certified within ``tol``, its block's curvature bounds are taken again
+    over half cubes, then quarter cubes (``Hr`` is updated in place), and the cube certified
+    again with them, as long as such cubes are at most :data:`SPLIT_SHARE` of those certified
+    (else the attempt fails at once)."""
+    todo = np.ones(len(band), bool) if which is None else which
+    d = np.zeros(len(band))
+    d[todo] = _cube_distances(fld, grid, band, g, Hr, worst, tol, which)
     for level in range(1, SPLIT_LEVELS + 1):
-        bad = ~(d <= tol)
-        if not bad.any() or bad.sum() > SPLIT_SHARE[level - 1] * len(band):
+        bad = todo & ~(d <= tol)
+        if not bad.any() or bad.sum() > SPLIT_SHARE[level - 1] * todo.sum():
             break
         near = _neighbourhood_max(band, bad.astype(np.float64)) > 0
         Hr[near] = np.minimum(Hr[near], _split_bounds(fld, grid, band, near, level))
@@ -519,14 +525,136 @@ class Band:
         return own[j] == k
 
 
-def uniform_mesh(fld: MeshField, tol: float, cell: float | None, attempts: int, triangles: bool = True):
+def _meshed(fld: MeshField, grid: _Grid, band: np.ndarray):
+    """Marching tetrahedra on the band (:func:`_triangles`): vertices (v, 3) float64 mm, faces
+    (t, 3) int64, each face's cube (t,), the vertices' residuals ``|F(v) − 1|`` (v,) and each
+    cube's largest (b,)."""
+    verts, faces, owner = _triangles(fld, grid, band)
+    resid = _residuals(fld, verts)
+    worst = np.zeros(len(band))
+    if len(faces):
+        np.maximum.at(worst, owner, resid[faces].max(axis=1))
+    return verts, faces, owner, resid, worst
+
+
+def _mesh_band(fld: MeshField, grid: _Grid, band: np.ndarray, g: np.ndarray, Hr: np.ndarray, d_cell: np.ndarray,
+               tol: float):
+    """Marching tetrahedra on the band (:func:`_triangles`), and the cubes next to a vertex
+    residual above :data:`RESIDUAL` certified again with it.
+
+    Returns
+    -------
+    vertices (v, 3) float64 mm, faces (t, 3) int64, each face's cube (t,), residuals (v,) and
+    the cubes' distances (b,) mm, ``d_cell`` updated.
+    """
+    verts, faces, owner, resid, worst = _meshed(fld, grid, band)
+    d_cell = d_cell.copy()
+    if (worst > RESIDUAL).any():      # certified again with the residuals found
+        redo = _neighbourhood_max(band, worst) > RESIDUAL
+        d_redo = _cube_distances(fld, grid, band, g, Hr, worst, tol, redo)
+        again = ~(d_redo <= tol)
+        if again.any():
+            which = np.zeros(len(band), bool)
+            which[np.flatnonzero(redo)[again]] = True
+            d_redo[again] = _cube_distances(fld, grid, band, g, Hr, worst, tol, which, split=SPLIT_LEVELS)
+        d_cell[redo] = d_redo
+    return verts, faces, owner, resid, d_cell
+
+
+def _face_bounds(band: np.ndarray, d: np.ndarray, owner: np.ndarray) -> np.ndarray:
+    """Per face, the largest certified distance ``d`` (per band cube, mm) of the cubes around its
+    cube ``owner``: a surface point in a cube C is within ``d[C]`` of a face of C's 3 x 3 x 3
+    block (step 3), so a face serves the surface points of the cubes around its own."""
+    return _neighbourhood_max(band, d)[owner] if len(owner) else np.zeros(0)
+
+
+#: levels of finer cubes (each half the last's side) certifying the surface where the band's
+#: cubes cannot, before a smaller cube everywhere is tried (a mesh made for simplifying)
+FINER_LEVELS = 3
+#: ... where a cube's certified distance exceeds this share of the tolerance (the rest is the simplification's)
+FINER_SHARE = 0.5
+
+
+#: finer cubes near the surface per cube cut into eight (about four where the surface is flat at their scale)
+FINER_PER_CUBE = 4
+
+
+def _finer_fits(band: np.ndarray, bad: np.ndarray, n_cubes: int) -> bool:
+    """Whether the cubes ``bad`` with their neighbours, cut into eight, are likely to leave at
+    most :data:`MAX_BAND` finer cubes near the surface (with ``n_cubes`` made already): an
+    estimate made before any work, which :func:`_finer` checks once they are made."""
+    region = int((_neighbourhood_max(band, bad.astype(np.float64)) > 0).sum())
+    return n_cubes + FINER_PER_CUBE * region <= MAX_BAND
+
+
+def _finer(fld: MeshField, grid: _Grid, band: np.ndarray, bad: np.ndarray, tol: float, stats: dict):
+    """Finer meshes certifying the surface in the band cubes ``bad`` (docs/mesh.md, step 3, "Finer cubes").
+
+    The cubes ``bad`` and their 26 neighbours are cut into eight; those the octree's bounds
+    cannot settle are meshed by marching tetrahedra on their own grid (half the side, the
+    same origin), and the halves of ``bad`` certified with the surface-to-mesh argument of
+    step 3 on that mesh: their 3 x 3 x 3 blocks of half cubes lie in the cubes cut, so the
+    points on either side of a surface point are on either side of the finer mesh, whose
+    triangles there are all made. Halves not certified go to the next level, up to
+    :data:`FINER_LEVELS`.
+
+    Returns
+    -------
+    (patches, bound), or None when some cubes are still not certified at the last level or
+    the finer cubes outnumber :data:`MAX_BAND`: each patch (vertices (p, 3) float64 mm,
+    faces (q, 3) int64, bounds (q,) mm: :func:`_face_bounds`) is a level's mesh, and ``bound``
+    (mm) the largest distance certified.
+    """
+    patches, bound, n_cubes = [], 0.0, 0
+    levels = []
+    for level in range(1, FINER_LEVELS + 1):
+        if not _finer_fits(band, bad, n_cubes):
+            return None
+        region = np.flatnonzero(_neighbourhood_max(band, bad.astype(np.float64)) > 0)
+        fine = _Grid(grid.origin, 0.5 * grid.h, grid.levels + 1, grid.coarse)
+        r = 0.5 * math.sqrt(3.0) * fine.h
+        cubes, inner = [], []
+        for lo in range(0, len(region), CHUNK // 8):
+            part = region[lo:lo + CHUNK // 8]
+            sub = (2 * band[part][:, None, :] + _CORNERS[None]).reshape(-1, 3)
+            ins, out = settle(fld, fine.centres(sub, 0), r)
+            keep = ~(ins | out)
+            cubes.append(sub[keep])
+            inner.append(np.repeat(bad[part], 8)[keep])
+        band = np.concatenate(cubes) if cubes else np.zeros((0, 3), np.int64)
+        inner = np.concatenate(inner) if inner else np.zeros(0, bool)
+        n_cubes += len(band)
+        if n_cubes > MAX_BAND:
+            return None
+        g, Hr = _cube_bounds(fld, fine, band)
+        verts, faces, owner, _, worst = _meshed(fld, fine, band)
+        d = _surface_to_mesh(fld, fine, band, g, Hr, worst, tol, inner)
+        certified = inner & (d <= FINER_SHARE * tol)
+        bound = max(bound, float(d[certified].max(initial=0.0)))
+        patches.append((verts, faces, _face_bounds(band, np.where(certified, d, 0.0), owner)))
+        bad = inner & ~certified
+        levels.append({"cube": fine.h, "cubes": int(len(band)), "certified": int(certified.sum()),
+                       "triangles": int(len(faces))})
+        grid = fine
+        if not bad.any():
+            stats["finer"] = levels
+            return patches, bound
+    stats["finer"] = levels
+    return None
+
+
+def uniform_mesh(fld: MeshField, tol: float, cell: float | None, attempts: int, triangles: bool = True,
+                 graded: bool = False):
     """The certified uniform mesh of marching tetrahedra (steps 1-3), with smaller cubes at
     each attempt until the bound is at most ``tol``, and its band.
 
     ``triangles=False`` leaves out the certificate of the triangles (mesh to surface), which
     a mesh simplified next does not need (it certifies its own): the attempts stop once the
     cubes are certified, and ``mesh_to_surface`` and ``bound`` are nan
-    (:func:`certify_triangles` adds them).
+    (:func:`certify_triangles` adds them). With ``graded`` too, an attempt (but the last)
+    whose cubes are not all certified is kept when finer meshes certify the surface in those
+    (:func:`_finer`, the result's ``patches``): the mesh is then certified only together with
+    them, as its simplification is (:func:`slicer.meshing.compact.simplified`).
 
     Returns
     -------
@@ -551,29 +679,32 @@ def uniform_mesh(fld: MeshField, tol: float, cell: float | None, attempts: int, 
             raise OptionError(f"{err}: at cubes of {out.cell:.4g} mm, {out.stats['uncertified_cubes']:,} of the "
                               f"{out.stats['band_cubes']:,} band cubes could not be certified (the curvature bounds "
                               f"are large where struts meet), and a larger --tol does not make them larger "
-                              f"(docs/mesh.md, 'One cube size everywhere')") from None
+                              f"(docs/mesh.md, 'Where struts meet')") from None
         # the cubes first: an attempt they cannot certify is not triangulated (but the last)
         g, Hr = _cube_bounds(fld, grid, band)
         d_cell = _surface_to_mesh(fld, grid, band, g, Hr, np.zeros(len(band)), tol)
         b = float(d_cell.max()) if len(d_cell) else 0.0
         stats = {"attempts": attempt, "band_cubes": int(len(band)), "settled_inside": counts["inside"],
                  "settled_outside": counts["outside"]}
+        meshed = None
+        if b > tol and graded and attempt < attempts and _finer_fits(band, ~(d_cell <= FINER_SHARE * tol), 0):
+            # the next attempt's cube side, as an attempt without finer meshes would choose it
+            next_cell = _smaller_cell(h, tol, b, g[~np.isfinite(d_cell)], Hr[~np.isfinite(d_cell)])
+            meshed = _mesh_band(fld, grid, band, g, Hr, d_cell, tol)
+            verts, faces, owner, resid, d_cell = meshed
+            bad = ~(d_cell <= FINER_SHARE * tol)
+            finer = _finer(fld, grid, band, bad, tol, stats)
+            if finer is not None:
+                patches, b_finer = finer
+                b = max(float(d_cell[~bad].max(initial=0.0)), b_finer)
+                stats.update(triangles=int(len(faces)), uncertified_cubes=int(bad.sum()), field_points=fld.points,
+                             field_balls=fld.balls, next_cell=next_cell)
+                out = SurfaceMesh(verts, faces, tol, math.nan, math.nan, b, h, stats, patches,
+                                  _face_bounds(band, np.where(bad, 0.0, d_cell), owner))
+                return out, Band(grid, band)
         if b <= tol or attempt == attempts:
-            verts, faces, owner = _triangles(fld, grid, band)
-            resid = _residuals(fld, verts)
-            worst = np.zeros(len(band))
-            if len(faces):
-                np.maximum.at(worst, owner, resid[faces].max(axis=1))
-            if (worst > RESIDUAL).any():      # certified again with the residuals found
-                redo = _neighbourhood_max(band, worst) > RESIDUAL
-                d_redo = _cube_distances(fld, grid, band, g, Hr, worst, tol, redo)
-                again = ~(d_redo <= tol)
-                if again.any():
-                    which = np.zeros(len(band), bool)
-                    which[np.flatnonzero(redo)[again]] = True
-                    d_redo[again] = _cube_distances(fld, grid, band, g, Hr, worst, tol, which, split=SPLIT_LEVELS)
-                d_cell[redo] = d_redo
-                b = float(d_cell.max())
+            verts, faces, _, resid, d_cell = meshed or _mesh_band(fld, grid, band, g, Hr, d_cell, tol)
+            b = float(d_cell.max()) if len(d_cell) else 0.0
             stats.update(triangles=int(len(faces)))
             a = _triangles_bound(fld, verts, faces, tol, resid, stats) if triangles or not len(faces) else math.nan
         else:
@@ -611,6 +742,13 @@ def certify_triangles(fld: MeshField, out: SurfaceMesh, attempts: int) -> Surfac
     certified too; when they are not within its tolerance, the attempts go on with smaller
     cubes (``attempts`` in all), as :func:`uniform_mesh` would have."""
     tol = out.tol
+    if out.patches:     # certified with finer meshes: alone, the mesh's cubes are not, so smaller ones everywhere
+        again, _ = uniform_mesh(fld, tol, out.stats["next_cell"], attempts - out.stats["attempts"])
+        again.stats["attempts"] += out.stats["attempts"]
+        for key in ("simplify", "finer"):
+            if key in out.stats:
+                again.stats[key] = out.stats[key]
+        return again
     if not len(out.faces):
         return out
     stats = dict(out.stats)
@@ -681,7 +819,7 @@ def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attem
     fld = MeshField(skel)
     # a mesh simplified next certifies its own triangles: the uniform mesh's are certified only
     # when it is kept
-    out, _ = uniform_mesh(fld, tol, cell, attempts, triangles=not compact)
+    out, _ = uniform_mesh(fld, tol, cell, attempts, triangles=not compact, graded=compact)
     if compact:
         kept = simplified(fld, out, tol) if out.surface_to_mesh <= tol and len(out.faces) else None
         if kept is None:

@@ -74,6 +74,7 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
                    f"{m.bound:.4g} mm (mesh to surface {m.mesh_to_surface:.4g}, surface to mesh "
                    f"{m.surface_to_mesh:.4g}; tolerance {tol:g})"
                    + (f", cubes of {m.cell:.4g} mm, {st['attempts']} attempt(s)" if "attempts" in st else "")
+                   + (f" (finer where struts meet: {_finer(st['finer'])})" if st.get("finer") else "")
                    + (f", {st['lattices']} summed lattices united" if st.get("lattices", 1) > 1 else "")
                    + (f", {st['cubes_near_meshes']:,} cubes and {st['probed_pieces']:,} triangle pieces checked "
                       f"where {_meeting(part, st)}" if "probed_pieces" in st else "")
@@ -83,6 +84,11 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
         click.echo(f"error: the bound {m.bound:.4g} mm is above --tol {tol:g} mm after {st['attempts']} attempts; "
                    f"the mesh is written but not certified", err=True)
         raise SystemExit(1)
+
+
+def _finer(levels) -> str:
+    """The finer cubes of a graded uniform mesh, level by level: "890,640 of 0.04 mm, ..."."""
+    return ", ".join(f"{level['cubes']:,} of {level['cube']:.4g} mm" for level in levels)
 
 
 def _meeting(part, stats) -> str:
