@@ -451,7 +451,7 @@ def test_compact_mesh_is_far_smaller_and_certified(meshed):
     it). Its uniform mesh is graded: the cubes its first cube side could not certify are
     certified by finer meshes."""
     skel, tol, m = meshed("struts")
-    assert m.stats["attempts"] == 1 and m.stats["finer"] and m.stats["uncertified_cubes"] > 0
+    assert m.stats["attempts"] == 1 and m.stats["finer"] and m.stats["refined_cubes"] > 0
     u = mesh_scene(skel, tol=tol, compact=False)
     assert u.stats["attempts"] > 1 and len(u.faces) >= 20 * len(m.faces)
     assert m.certified and m.bound <= tol
@@ -525,14 +525,41 @@ def test_finer_cubes_cover_every_cube_the_band_could_not_certify(monkeypatch):
         assert (ins | out).all()
         todo = nxt
     assert not todo
-    # every surface point is within its bound of a face of the mesh or of a patch
-    faces = [(u.vertices[u.faces], u.face_bounds)] + [(v[f], b) for v, f, b in u.patches]
-    surf = surface_points_on_lines(skel, n_lines=40)
-    assert len(surf) >= 20
-    for p in surf:
-        slack = min(float((point_to_triangles(p, tri) - b).min()) for tri, b in faces)
-        assert slack <= 0.0, (p, slack)
-    assert max(float(b.max()) for _, b in faces) <= u.surface_to_mesh <= aim
+    # each face's bound holds every certified cube whose 3 x 3 x 3 block holds the face (its
+    # centroid strictly inside the block): a surface point there may have only that face near it
+    levels = [(grid, band, ~bad, d_cell)] + [(fine, fband, inner & (d <= aim), d)
+                                             for fine, fband, inner, d in seen["levels"]]
+    for (g_, cubes, ok, dist), (tri, bounds) in zip(levels, [(u.vertices[u.faces], u.face_bounds)]
+                                                    + [(v[f], b) for v, f, b in u.patches]):
+        assert ok.any() and len(bounds) == len(tri)
+        span = cubes.max(axis=0) + 4
+        key = lambda c: ((c[:, 2] + 1) * span[1] + c[:, 1] + 1) * span[0] + c[:, 0] + 1      # noqa: E731
+        known = key(cubes[ok])
+        order = np.argsort(known)
+        known, certified_d = known[order], dist[ok][order]
+        pos = (tri.mean(axis=1) - g_.origin) / g_.h
+        q = np.floor(pos).astype(np.int64)
+        on_low = pos - q < 1e-9
+        need = np.zeros(len(tri))
+        for step in np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)]):
+            c = q + step
+            j = np.minimum(np.searchsorted(known, key(c)), len(known) - 1)
+            hit = (known[j] == key(c)) & ~(on_low & (step == 1)).any(axis=1)
+            need[hit] = np.maximum(need[hit], certified_d[j[hit]])
+        assert (bounds >= need).all(), float((need - bounds).max())
+    # every surface point is within its bound of a face: of a patch in the cubes refined, of the
+    # mesh itself in the others (each side alone, so that a bound given to the wrong faces shows)
+    mesh_faces = [(u.vertices[u.faces], u.face_bounds)]
+    patch_faces = [(v[f], b) for v, f, b in u.patches]
+    refined = {tuple(c) for c in band[bad]}
+    surf = surface_points_on_lines(skel, n_lines=60)
+    cube = np.floor((surf - grid.origin) / grid.h).astype(np.int64)
+    in_refined = np.array([tuple(c) in refined for c in cube])
+    assert in_refined.sum() >= 10 and (~in_refined).sum() >= 10
+    for p, fine in zip(surf, in_refined):
+        slack = min(float((point_to_triangles(p, tri) - b).min()) for tri, b in (patch_faces if fine else mesh_faces))
+        assert slack <= 0.0, (p, fine, slack)
+    assert max(float(b.max()) for _, b in mesh_faces + patch_faces) <= u.surface_to_mesh <= aim
 
 
 def test_uniform_triangles_held_where_the_first_simplification_fails(meshed):
@@ -713,7 +740,8 @@ def test_uniform_mesh_kept_when_no_simplification_certifies(monkeypatch):
     monkeypatch.setattr(mesh_surface, "simplified", lambda fld, uniform, tol: None)
     plain = mesh_scene(skel, tol=0.1, compact=False)
     graded = mesh_scene(skel, tol=0.1)
-    assert graded.stats["finer"]        # its first uniform mesh was graded, and is not written
+    # its first uniform mesh was graded, and is not written (nor are its finer cubes reported as the mesh's)
+    assert graded.stats["graded_attempt"] and "finer" not in graded.stats
     _same_mesh(graded, plain)
     real = mesh_surface._triangles_bound
 

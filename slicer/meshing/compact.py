@@ -10,7 +10,10 @@ fewer, larger triangles. Nothing is taken on trust from the simplifier;
 * **surface to mesh**: every surface point is within ``b0`` of ``M0``, and
   every point of ``M0`` within ``d01`` of ``M1`` (bounded triangle by
   triangle, :func:`slicer._kernels.meshing.nearest.distance_bounds`), so
-  within ``b0 + d01`` of ``M1``;
+  within ``b0 + d01`` of ``M1``; a graded ``M0`` (finer cubes where struts
+  meet) bounds each face T for the surface points it serves, ``b_T``, and
+  has finer patches bounded alike: then ``b_T + d01(T)`` over the faces of
+  both;
 * **mesh to surface**: each triangle of ``M1`` gets the certificate of the
   uniform mesh's triangles (the interpolation error over its enclosing ball
   and the slope along the gradient); a triangle too large for it is cut into
@@ -330,12 +333,13 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
             else:
                 bad = ~(s0 + d01 <= tol)
                 far_p = [(vp, fp[~(sp + d <= tol)]) for (vp, fp, sp), d in zip(patches, d_patches)]
-                # a finer patch's triangle has about a quarter of a uniform one's area
-                n_far = int((hold | bad).sum()) + sum(len(f) for _, f in far_p) / 4.0
+                # a triangle of the k-th level's patch has about 4**-k of a uniform one's area
+                n_far = int((hold | bad).sum()) + sum(len(f) / 4.0 ** k for k, (_, f) in enumerate(far_p, 1))
                 if n_far > HOLD_SHARE * len(f1):     # all held below: too many
                     break
                 balls = [_balls(v[f], 2.0 * eps) for v, f in [(v0, f0[bad])] + far_p if len(f)]
-                where = tuple(np.concatenate(parts) for parts in zip(*balls)) if balls else (np.zeros((0, 3)), np.zeros(0))
+                where = (tuple(np.concatenate(parts) for parts in zip(*balls)) if balls
+                         else (np.zeros((0, 3)), np.zeros(0)))
             if centroids is None:
                 centroids = v0[f0].mean(axis=1)
             more = within(centroids, *where) & ~hold

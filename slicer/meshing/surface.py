@@ -651,8 +651,9 @@ def uniform_mesh(fld: MeshField, tol: float, cell: float | None, attempts: int, 
     ``triangles=False`` leaves out the certificate of the triangles (mesh to surface), which
     a mesh simplified next does not need (it certifies its own): the attempts stop once the
     cubes are certified, and ``mesh_to_surface`` and ``bound`` are nan
-    (:func:`certify_triangles` adds them). With ``graded`` too, an attempt (but the last)
-    whose cubes are not all certified is kept when finer meshes certify the surface in those
+    (:func:`certify_triangles` adds them). With ``graded`` too (it needs ``triangles=False``),
+    an attempt (but the last) whose cubes are not all certified is kept when finer meshes
+    certify the surface in those with a bound above ``FINER_SHARE * tol``
     (:func:`_finer`, the result's ``patches``): the mesh is then certified only together with
     them, as its simplification is (:func:`slicer.meshing.compact.simplified`).
 
@@ -686,24 +687,24 @@ def uniform_mesh(fld: MeshField, tol: float, cell: float | None, attempts: int, 
         b = float(d_cell.max()) if len(d_cell) else 0.0
         stats = {"attempts": attempt, "band_cubes": int(len(band)), "settled_inside": counts["inside"],
                  "settled_outside": counts["outside"]}
-        meshed = None
-        if b > tol and graded and attempt < attempts and _finer_fits(band, ~(d_cell <= FINER_SHARE * tol), 0):
+        if b > tol and graded and not triangles and attempt < attempts \
+                and _finer_fits(band, ~(d_cell <= FINER_SHARE * tol), 0):
             # the next attempt's cube side, as an attempt without finer meshes would choose it
             next_cell = _smaller_cell(h, tol, b, g[~np.isfinite(d_cell)], Hr[~np.isfinite(d_cell)])
-            meshed = _mesh_band(fld, grid, band, g, Hr, d_cell, tol)
-            verts, faces, owner, resid, d_cell = meshed
-            bad = ~(d_cell <= FINER_SHARE * tol)
+            verts, faces, owner, resid, d_meshed = _mesh_band(fld, grid, band, g, Hr, d_cell, tol)
+            bad = ~(d_meshed <= FINER_SHARE * tol)
             finer = _finer(fld, grid, band, bad, tol, stats)
             if finer is not None:
                 patches, b_finer = finer
-                b = max(float(d_cell[~bad].max(initial=0.0)), b_finer)
-                stats.update(triangles=int(len(faces)), uncertified_cubes=int(bad.sum()), field_points=fld.points,
+                b = max(float(d_meshed[~bad].max(initial=0.0)), b_finer)
+                stats.update(triangles=int(len(faces)), refined_cubes=int(bad.sum()), field_points=fld.points,
                              field_balls=fld.balls, next_cell=next_cell)
                 out = SurfaceMesh(verts, faces, tol, math.nan, math.nan, b, h, stats, patches,
-                                  _face_bounds(band, np.where(bad, 0.0, d_cell), owner))
+                                  _face_bounds(band, np.where(bad, 0.0, d_meshed), owner))
                 return out, Band(grid, band)
+            # not kept: the next cube side is the one an attempt without finer meshes chooses
         if b <= tol or attempt == attempts:
-            verts, faces, _, resid, d_cell = meshed or _mesh_band(fld, grid, band, g, Hr, d_cell, tol)
+            verts, faces, _, resid, d_cell = _mesh_band(fld, grid, band, g, Hr, d_cell, tol)
             b = float(d_cell.max()) if len(d_cell) else 0.0
             stats.update(triangles=int(len(faces)))
             a = _triangles_bound(fld, verts, faces, tol, resid, stats) if triangles or not len(faces) else math.nan
@@ -745,9 +746,10 @@ def certify_triangles(fld: MeshField, out: SurfaceMesh, attempts: int) -> Surfac
     if out.patches:     # certified with finer meshes: alone, the mesh's cubes are not, so smaller ones everywhere
         again, _ = uniform_mesh(fld, tol, out.stats["next_cell"], attempts - out.stats["attempts"])
         again.stats["attempts"] += out.stats["attempts"]
-        for key in ("simplify", "finer"):
-            if key in out.stats:
-                again.stats[key] = out.stats[key]
+        # the finer cubes of the graded attempt are not in this mesh: kept under a name of their own
+        again.stats["graded_attempt"] = out.stats["finer"]
+        if "simplify" in out.stats:
+            again.stats["simplify"] = out.stats["simplify"]
         return again
     if not len(out.faces):
         return out
