@@ -579,12 +579,13 @@ FINER_SHARE = 0.5
 FINER_PER_CUBE = 4
 
 
-def _finer_fits(band: np.ndarray, bad: np.ndarray, n_cubes: int) -> bool:
-    """Whether the cubes ``bad`` with their neighbours, cut into eight, are likely to leave at
-    most :data:`MAX_BAND` finer cubes near the surface (with ``n_cubes`` made already): an
-    estimate made before any work, which :func:`_finer` checks once they are made."""
-    region = int((_neighbourhood_max(band, bad.astype(np.float64)) > 0).sum())
-    return n_cubes + FINER_PER_CUBE * region <= MAX_BAND
+def _finer_region(band: np.ndarray, bad: np.ndarray, n_cubes: int) -> np.ndarray | None:
+    """The band cubes ``bad`` with their neighbours (positions in ``band``), or None when, cut
+    into eight, they are likely to leave more than :data:`MAX_BAND` finer cubes near the
+    surface (with ``n_cubes`` made already): an estimate made before any work, which
+    :func:`_finer` checks once they are made."""
+    region = np.flatnonzero(_neighbourhood_max(band, bad.astype(np.float64)) > 0)
+    return region if n_cubes + FINER_PER_CUBE * len(region) <= MAX_BAND else None
 
 
 def _finer(fld: MeshField, grid: _Grid, band: np.ndarray, bad: np.ndarray, tol: float, stats: dict):
@@ -608,9 +609,9 @@ def _finer(fld: MeshField, grid: _Grid, band: np.ndarray, bad: np.ndarray, tol: 
     patches, bound, n_cubes = [], 0.0, 0
     levels = []
     for level in range(1, FINER_LEVELS + 1):
-        if not _finer_fits(band, bad, n_cubes):
+        region = _finer_region(band, bad, n_cubes)
+        if region is None:
             return None
-        region = np.flatnonzero(_neighbourhood_max(band, bad.astype(np.float64)) > 0)
         fine = _Grid(grid.origin, 0.5 * grid.h, grid.levels + 1, grid.coarse)
         r = 0.5 * math.sqrt(3.0) * fine.h
         cubes, inner = [], []
@@ -688,7 +689,7 @@ def uniform_mesh(fld: MeshField, tol: float, cell: float | None, attempts: int, 
         stats = {"attempts": attempt, "band_cubes": int(len(band)), "settled_inside": counts["inside"],
                  "settled_outside": counts["outside"]}
         if b > tol and graded and not triangles and attempt < attempts \
-                and _finer_fits(band, ~(d_cell <= FINER_SHARE * tol), 0):
+                and _finer_region(band, ~(d_cell <= FINER_SHARE * tol), 0) is not None:
             # the next attempt's cube side, as an attempt without finer meshes would choose it
             next_cell = _smaller_cell(h, tol, b, g[~np.isfinite(d_cell)], Hr[~np.isfinite(d_cell)])
             verts, faces, owner, resid, d_meshed = _mesh_band(fld, grid, band, g, Hr, d_cell, tol)
