@@ -65,9 +65,11 @@ def scenes(quick, dense=False):
 LARGE = ("octet_2x2x2", "microstructure")
 
 
-def run(quick, dense=False):
+def run(quick, dense=False, only=None):
     rows = []
     for name, skel, tol in scenes(quick, dense):
+        if only is not None and name != only:
+            continue
         large = name in LARGE
         for method, compact in ((("certified uniform", False),) if not large else ()) + (("certified", True),):
             t0 = time.perf_counter()
@@ -85,7 +87,8 @@ def run(quick, dense=False):
                     "measured": measured_error(skel, m.vertices, m.faces),
                     "attempts": m.stats["attempts"], "band_cubes": m.stats["band_cubes"],
                     "uniform_triangles": m.stats.get("uniform_triangles", int(len(m.faces))),
-                    "finer_cubes": sum(level["cubes"] for level in m.stats.get("finer", []))}
+                    "finer_cubes": sum(level["cubes"] for level in m.stats.get("finer", [])),
+                    "tiles": len(m.stats.get("tiles", ()))}
             rows.append(ours)
             print(ours, file=sys.stderr, flush=True)
         # level sets from the finest cube side used (a graded mesh's finer cubes)
@@ -143,9 +146,10 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="The two small scenes only.")
     ap.add_argument("--dense", action="store_true",
                     help="Add the dense lattice octet_2x2x2 and the microstructure sample (minutes each).")
+    ap.add_argument("--only", default=None, metavar="SCENE", help="This scene alone (a name of the table's).")
     ap.add_argument("--json", default=None, help="Also write the rows, command and machine here.")
     a = ap.parse_args(argv)
-    rows = run(a.quick, a.dense)
+    rows = run(a.quick, a.dense, a.only)
     res = {"benchmark": "mesh_bench", "command": machine.command_line("python benchmarks/mesh_bench.py", argv),
            "machine": machine.describe(), "rows": rows}
     machine.publish(res, table(rows), a.json)

@@ -8,12 +8,40 @@ numpy, nothing of the mesher's code.
   bisection of F on random lines through the scene's box.
 * :func:`point_triangle_distance`: the distance from points to triangles (the closest point
   of each triangle: its plane's foot inside it, else the nearest edge point), brute force.
+* :func:`assert_certified_mesh`: the acceptance check of a lattice's mesh, all of the above
+  and the winding numbers of points well inside and outside.
 """
 from __future__ import annotations
 
 import numpy as np
+import trimesh
 
+from parts_helpers import winding_number
 from slicer.model.field import evaluate
+
+
+def assert_certified_mesh(skel, m, tol, n_lines=40):
+    """A lattice's certified mesh ``m`` (a SurfaceMesh) passes the acceptance check at ``tol``:
+    closed, consistently wound, outward; points on it have the surface within ``tol``; surface
+    points on random lines are within ``tol`` of it; points with F >= 1.2 are inside it (winding
+    number 1), points with F <= 0.8 outside (0)."""
+    assert m.certified and m.bound <= tol and max(m.mesh_to_surface, m.surface_to_mesh) == m.bound
+    t = trimesh.Trimesh(m.vertices, m.faces, process=False)
+    assert t.is_watertight and t.is_winding_consistent and t.volume > 0
+    # every edge in exactly two faces, once each way (oriented 2-manifold)
+    e = np.concatenate([m.faces[:, [0, 1]], m.faces[:, [1, 2]], m.faces[:, [2, 0]]])
+    assert len(np.unique(e, axis=0)) == len(e)
+    assert len(mesh_points_near_surface(skel, m.vertices, m.faces, tol)) == 0
+    surf = surface_points_on_lines(skel, n_lines=n_lines)
+    assert len(surf) >= n_lines // 2
+    d = point_triangle_distance(surf, m.vertices[m.faces])
+    assert d.max() <= tol, d.max()
+    lo, hi = skel.support_bounds()
+    p = np.random.default_rng(5).uniform(lo, hi, (400, 3))
+    f = evaluate(skel, p)[0]
+    p = p[np.abs(f - 1) > 0.2]
+    w = winding_number(m.vertices[m.faces], p, chunk=4)
+    assert np.allclose(w, np.rint(w), atol=1e-6) and np.array_equal(np.rint(w) == 1, evaluate(skel, p)[0] > 1)
 
 
 def mesh_points_near_surface(skel, vertices, faces, tol, k_per_face=2, seed=0):

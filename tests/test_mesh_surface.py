@@ -26,8 +26,8 @@ from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mesh_checks import mesh_points_near_surface, point_to_triangles, point_triangle_distance, surface_points_on_lines
-from parts_helpers import winding_number
+from mesh_checks import (assert_certified_mesh, point_to_triangles, point_triangle_distance,
+                         surface_points_on_lines)
 from slicer import Skeleton, generate_lattice
 from slicer._kernels.runtime.launch import numba_threads
 from slicer._kernels.meshing.ballbounds import ball_bounds
@@ -35,6 +35,7 @@ from slicer.cli.app import main
 from slicer.errors import OptionError, SceneError
 from slicer.model.field import evaluate, point_grid
 from slicer.meshing import mesh_scene, write_mesh
+from slicer.meshing import cubes as mesh_cubes
 from slicer.meshing import surface as mesh_surface
 from slicer.meshing.certificate import MeshField, distances_to_surface, enclosing_balls, straight_chains
 from slicer.meshing import compact
@@ -240,24 +241,7 @@ def meshed():
 @pytest.mark.parametrize("name", ["needle", "struts", "held"])
 def test_the_mesh_is_watertight_and_within_tol_both_ways(meshed, name):
     skel, tol, m = meshed(name)
-    assert m.certified and m.bound <= tol and max(m.mesh_to_surface, m.surface_to_mesh) == m.bound
-    t = trimesh.Trimesh(m.vertices, m.faces, process=False)
-    assert t.is_watertight and t.is_winding_consistent and t.volume > 0
-    # every edge in exactly two faces, once each way (oriented 2-manifold)
-    e = np.concatenate([m.faces[:, [0, 1]], m.faces[:, [1, 2]], m.faces[:, [2, 0]]])
-    assert len(np.unique(e, axis=0)) == len(e)
-    assert len(mesh_points_near_surface(skel, m.vertices, m.faces, tol)) == 0
-    surf = surface_points_on_lines(skel, n_lines=40)
-    assert len(surf) >= 20
-    d = point_triangle_distance(surf, m.vertices[m.faces])
-    assert d.max() <= tol, d.max()
-    # the solid: points well inside (F >= 1.2) are inside the mesh, points with F <= 0.8 outside
-    lo, hi = skel.support_bounds()
-    p = np.random.default_rng(5).uniform(lo, hi, (400, 3))
-    f = evaluate(skel, p)[0]
-    p = p[np.abs(f - 1) > 0.2]
-    w = winding_number(m.vertices[m.faces], p, chunk=4)
-    assert np.allclose(w, np.rint(w), atol=1e-6) and np.array_equal(np.rint(w) == 1, evaluate(skel, p)[0] > 1)
+    assert_certified_mesh(skel, m, tol)
 
 
 def test_tip_of_a_needle_is_kept(meshed):
@@ -296,7 +280,7 @@ def test_chunks_change_nothing(monkeypatch):
     the same bound as the default chunks."""
     skel = two_struts()
     a = mesh_scene(skel, tol=0.1, compact=False)
-    monkeypatch.setattr(mesh_surface, "CHUNK", 101)
+    monkeypatch.setattr(mesh_cubes, "CHUNK", 101)
     b = mesh_scene(skel, tol=0.1, compact=False)
     assert a.stats["band_cubes"] > 50 * 101
     assert np.array_equal(a.vertices, b.vertices)
@@ -310,13 +294,13 @@ def test_a_retry_beyond_the_memory_limit_says_why(monkeypatch):
     exceed the band's limit, the refusal names the cubes not certified and says that a
     larger tolerance does not help; on the first attempt it asks for a larger --tol."""
     skel = small_lattice()
-    grid = mesh_surface._grid(skel, 0.25)
-    first = len(mesh_surface._band(MeshField(skel), grid)[0])
-    monkeypatch.setattr(mesh_surface, "MAX_BAND", int(first * 1.05))
+    grid = mesh_cubes._grid(skel, 0.25)
+    first = len(mesh_cubes._band(MeshField(skel), grid)[0])
+    monkeypatch.setattr(mesh_cubes, "MAX_BAND", int(first * 1.05))
     with pytest.raises(OptionError, match=r"of the [\d,]+ band cubes could not be certified .* a larger --tol does "
                                           r"not make them larger"):
         mesh_scene(skel, tol=0.05, cell=0.25)
-    monkeypatch.setattr(mesh_surface, "MAX_BAND", first // 2)
+    monkeypatch.setattr(mesh_cubes, "MAX_BAND", first // 2)
     with pytest.raises(OptionError, match=r"keeps in memory; ask for a larger --tol"):
         mesh_scene(skel, tol=0.05, cell=0.25)
 
@@ -477,7 +461,7 @@ def test_finer_cubes_cover_every_cube_the_band_could_not_certify(monkeypatch):
     skel, tol = struts(), 0.06
     fld = MeshField(skel)
     seen = {}
-    real_band, real_finer, real_s2m = mesh_surface._mesh_band, mesh_surface._finer, mesh_surface._surface_to_mesh
+    real_band, real_finer, real_s2m = mesh_surface._mesh_band, mesh_surface._finer, mesh_cubes._surface_to_mesh
 
     def band_spy(*args):
         out = real_band(*args)
@@ -497,19 +481,19 @@ def test_finer_cubes_cover_every_cube_the_band_could_not_certify(monkeypatch):
 
     monkeypatch.setattr(mesh_surface, "_mesh_band", band_spy)
     monkeypatch.setattr(mesh_surface, "_finer", finer_spy)
-    monkeypatch.setattr(mesh_surface, "_surface_to_mesh", s2m_spy)
+    monkeypatch.setattr(mesh_cubes, "_surface_to_mesh", s2m_spy)
     u, _ = mesh_surface.uniform_mesh(fld, tol, None, mesh_surface.ATTEMPTS, triangles=False, graded=True)
     aim = mesh_surface.FINER_SHARE * tol
     grid, band, d_cell = seen["coarse"]
     bad = seen["bad"]
     assert u.patches and len(u.patches) == len(seen["levels"]) and bad.any()
     assert np.array_equal(bad, ~(d_cell <= aim))
-    corners = mesh_surface._CORNERS
+    corners = mesh_cubes._CORNERS
     todo = {tuple(c) for c in band[bad]}
     for fine, fband, inner, d in seen["levels"]:
         where = {tuple(c): k for k, c in enumerate(fband)}
         kids = np.array([2 * np.array(c) + k for c in sorted(todo) for k in corners])
-        ins, out = mesh_surface.settle(fld, fine.centres(kids, 0), 0.5 * math.sqrt(3.0) * fine.h)
+        ins, out = mesh_cubes.settle(fld, fine.centres(kids, 0), 0.5 * math.sqrt(3.0) * fine.h)
         nxt = set()
         for kid, settled in zip(map(tuple, kids), ins | out):
             k = where.get(kid)
@@ -521,7 +505,7 @@ def test_finer_cubes_cover_every_cube_the_band_could_not_certify(monkeypatch):
         steps = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
         around = np.unique((fband[ok][:, None, :] + steps[None]).reshape(-1, 3), axis=0)
         missing = np.array([c for c in around if tuple(c) not in where]).reshape(-1, 3)
-        ins, out = mesh_surface.settle(fld, fine.centres(missing, 0), 0.5 * math.sqrt(3.0) * fine.h)
+        ins, out = mesh_cubes.settle(fld, fine.centres(missing, 0), 0.5 * math.sqrt(3.0) * fine.h)
         assert (ins | out).all()
         todo = nxt
     assert not todo
@@ -587,10 +571,10 @@ def _patched_simplify(monkeypatch, scale, grow=None):
     monkeypatch.setattr(compact, "FRACTIONS", (0.125, 0.0625))
     eps_of = {}
 
-    def patched(vertices, faces, eps, hold=None):
+    def patched(vertices, faces, eps, hold=None, planes=None):
         k = eps_of.setdefault(eps, len(eps_of))
         calls.append((k, 0 if hold is None else int(hold.sum())))
-        v, f = real(vertices, faces, eps * scale[k], hold)
+        v, f = real(vertices, faces, eps * scale[k], hold, planes)
         return v * (grow or {}).get(k, 1.0), f
 
     monkeypatch.setattr(compact, "simplify", patched)

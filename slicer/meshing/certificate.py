@@ -46,7 +46,8 @@ class SurfaceMesh:
     face_bounds : (t,) float64, mm, optional
         With patches: per face, a bound that holds for the surface points it serves: every
         surface point is within some face's bound of that face (of the mesh or of a patch).
-        None: ``surface_to_mesh`` for every face.
+        None: ``surface_to_mesh`` for every face. nan (a tile's mesh, :mod:`slicer.meshing.tiles`):
+        the face serves none of the tile's surface points (its caps, the overlap round its box).
     """
 
     vertices: np.ndarray

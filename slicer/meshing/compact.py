@@ -27,6 +27,7 @@ next one's is tried last); when none certifies, the uniform mesh stays.
 """
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -49,7 +50,8 @@ PIECES = 2.0
 MAX_CELLS = 4_000_000
 
 
-def simplify(vertices: np.ndarray, faces: np.ndarray, eps: float, hold: np.ndarray | None = None):
+def simplify(vertices: np.ndarray, faces: np.ndarray, eps: float, hold: np.ndarray | None = None,
+             planes: np.ndarray | None = None):
     """``(vertices, faces)`` of the closed mesh simplified by manifold3d to ``eps`` (mm).
 
     Parameters
@@ -62,14 +64,21 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, eps: float, hold: np.ndarr
         Triangles to hold as they are: each is passed as a face of its own, and manifold3d
         collapses no edge between two faces (only its clean-up of triangles degenerate
         within ``eps`` may still change them).
+    planes : (t,) int64, optional
+        Triangles with the same positive number are one flat face of their own (a tile's cap on
+        a face of its box, :mod:`slicer.meshing.tiles`): no edge between it and another face
+        is collapsed, so no triangle joins it. 0: the surface.
 
     Returns
     -------
     (v', 3) float64 and (t', 3) int64: a subset of the vertices, closed and oriented.
     """
     face_id = None
+    if planes is not None and planes.any():
+        face_id = planes.astype(np.uint64)
     if hold is not None and hold.any():
-        face_id = np.where(hold, 1 + np.arange(len(faces), dtype=np.uint64), np.uint64(0))
+        base = np.zeros(len(faces), np.uint64) if face_id is None else face_id
+        face_id = np.where(hold, 1 + int(base.max()) + np.arange(len(faces), dtype=np.uint64), base)
     solid = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.ascontiguousarray(vertices, np.float64),
                                                   tri_verts=np.ascontiguousarray(faces, np.uint64),
                                                   face_id=face_id))
@@ -241,14 +250,24 @@ def _balls(tri: np.ndarray, margin: float):
 
 
 def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface, target: float | None = None,
-               wedges: bool | None = None, hold_rounds: int = HOLD_ROUNDS):
+               wedges: bool | None = None, hold_rounds: int = HOLD_ROUNDS, on_surface=None, planes=None,
+               as_is: bool = False, tidy=None, surface_first: bool = False):
     """The loop of :func:`compact` (and of a part's, :mod:`slicer.meshing.composite`): ``uniform`` simplified to
     fractions of ``budget``; surface to mesh by the distances from ``uniform`` to the result
     (pieces split while above ``target``, by default ``reach − uniform.surface_to_mesh``; nothing
     farther than ``reach`` found; ``wedges`` as :func:`mesh_to_mesh`'s, None by default: a
     lattice's); mesh to surface by ``mesh_to_surface(v1, f1, row)`` (a bound per triangle, mm;
     ``row`` takes its counts). Where ``uniform`` has finer patches (:func:`slicer.meshing.surface.uniform_mesh`,
-    ``graded``), their distances to the result count too.
+    ``graded``), their distances to the result count too. Uniform faces whose bound is nan serve no
+    surface point (a tile's caps, :mod:`slicer.meshing.tiles`) and are not measured;
+    ``on_surface(v1, f1)``, a (t1,) bool mask, names the result's triangles the distances are
+    measured to (default: all); ``planes`` as :func:`simplify`'s. With ``as_is``, when no
+    simplification is kept, ``uniform`` itself is checked the same way and kept if it certifies
+    (a tile's mesh, whose small pieces a simplification can erase). ``tidy(v1, f1)`` returns what
+    is kept of each simplification (and of ``uniform`` as it is), (v1, f1): a tile's, cut by its box.
+    With ``surface_first``, a simplification's own triangles are certified first, and its
+    distances from ``uniform`` bounded only when they are (a tile's: where the curvature bounds
+    are large, most tolerances fail there, and the distances cost more).
 
     Where a simplification is not certified (uniform triangles too far from it, or its own
     triangles not certified on the surface), the uniform triangles near those places are held
@@ -266,13 +285,20 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
     patches = [(vp, fp, sp) for vp, fp, sp in uniform.patches if len(fp)]
     # the surface points a uniform face serves are within its bound of it (one bound for all, or each face's)
     s0 = np.full(len(f0), uniform.surface_to_mesh) if uniform.face_bounds is None else uniform.face_bounds
+    # a tile's faces with a nan bound serve none of its surface points (without on_surface, a nan is kept: it fails)
+    serves = ~np.isnan(s0) if on_surface is not None else np.ones(len(f0), bool)
+    f0s, s0s = (f0, s0) if serves.all() else (f0[serves], s0[serves])
     centroids = None
     ahead = {}      # the next tolerance's simplification (nothing held), made to compare with this one's
+
+    def made(v, f):
+        return (v, f) if tidy is None else tidy(v, f)
 
     def plain(i):
         if i not in ahead:
             start = time.perf_counter()
-            ahead[i] = simplify(v0, f0, FRACTIONS[i] * budget) + (time.perf_counter() - start,)
+            mesh = (v0, f0) if i == len(FRACTIONS) else simplify(v0, f0, FRACTIONS[i] * budget, planes=planes)
+            ahead[i] = made(*mesh) + (time.perf_counter() - start,)
         return ahead[i]
 
     passed = []     # tolerances passed over for the next one's simplification
@@ -281,19 +307,19 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
         """The rounds of tolerance ``i``: the mesh kept, or None and whether smaller tolerances are
         not worth trying."""
         nonlocal centroids
-        eps = FRACTIONS[i] * budget
+        eps = FRACTIONS[i] * budget if i < len(FRACTIONS) else 0.0
         hold = np.zeros(len(f0), bool)
         for rnd in range(hold_rounds + 1):
             if hold.any():
                 start = time.perf_counter()
-                v1, f1 = simplify(v0, f0, eps, hold)
+                v1, f1 = made(*simplify(v0, f0, eps, hold, planes))
             else:                   # made now, or ahead while the last tolerance was looked at
                 v1, f1, took = plain(i)
-                del ahead[i]
+                ahead.pop(i, None)
                 start = time.perf_counter() - took
             row = {"eps": eps, "triangles": int(len(f1)), "held": int(hold.sum()), "kept": False}
             tried.append(row)
-            small = 0 < len(f1) <= GAIN * len(f0)
+            small = 0 < len(f1) <= GAIN * len(f0) or (eps == 0.0 and len(f1) > 0)
             if rnd == 0 and look_ahead and i + 1 < len(FRACTIONS) and len(f1):
                 mark = time.perf_counter()
                 nxt = len(plain(i + 1)[1])
@@ -308,30 +334,52 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
             if not small:
                 # a smaller tolerance saves fewer triangles still; with triangles held, it may not
                 return None, not hold.any()
-            aim = reach - uniform.surface_to_mesh if target is None else target
-            d01 = mesh_to_mesh(v0, f0, v1, f1, aim, reach, wedges)
-            # the surface is within surface_to_mesh of the uniform mesh and its finer patches together
-            d_patches = [mesh_to_mesh(vp, fp, v1, f1, aim, reach, wedges) for vp, fp, _ in patches]
-            far = max([float(d01.max())] + [float(d.max()) for d in d_patches])
-            b1 = max([float((s0 + d01).max())] + [float((sp + d).max()) for (_, _, sp), d in zip(patches, d_patches)])
-            row.update(uniform_to_compact=far, seconds=time.perf_counter() - start)
-            if b1 <= tol:
-                # a round that holds nothing more after it only needs to know whether it certifies
+            a = a1 = None
+
+            def own_triangles():
+                """Mesh to surface (a round that holds nothing more after it only needs to know
+                whether it certifies)."""
                 row["first_failure"] = rnd == hold_rounds and rnd > 0
                 a = mesh_to_surface(v1, f1, row)
                 a1 = float(a.max()) if len(a) else 0.0
                 row.update(mesh_to_surface=a1, kept=bool(a1 <= tol), seconds=time.perf_counter() - start)
-                if row["kept"]:
-                    stats = dict(uniform.stats, uniform_triangles=int(len(f0)),
-                                 uniform_surface_to_mesh=uniform.surface_to_mesh, simplify=tried,
-                                 triangles=int(len(f1)))
-                    return SurfaceMesh(v1, f1, tol, max(a1, b1), a1, b1, uniform.cell, stats), True
-            if rnd == hold_rounds:
+                return a, a1
+
+            if surface_first:
+                a, a1 = own_triangles()
+            b1 = math.inf
+            if a1 is None or a1 <= tol:
+                aim = reach - uniform.surface_to_mesh if target is None else target
+                f1s = f1 if on_surface is None else f1[on_surface(v1, f1)]
+
+                def distances(v, f):
+                    """Bounds of the distances from the faces f to the result (none of it: inf)."""
+                    if not len(f1s) or not len(f):
+                        return np.full(len(f), np.inf)
+                    return mesh_to_mesh(v, f, v1, f1s, aim, reach, wedges)
+
+                d01 = distances(v0, f0s)
+                # the surface is within surface_to_mesh of the uniform mesh and its finer patches together
+                d_patches = [distances(vp, fp) for vp, fp, _ in patches]
+                far = max([float(d01.max(initial=0.0))] + [float(d.max()) for d in d_patches])
+                b1 = max([float((s0s + d01).max(initial=0.0))]
+                         + [float((sp + d).max()) for (_, _, sp), d in zip(patches, d_patches)])
+                row.update(uniform_to_compact=far, kept=False, seconds=time.perf_counter() - start)
+                if b1 <= tol and a is None:
+                    a, a1 = own_triangles()
+            if a1 is not None and a1 <= tol and b1 <= tol:
+                row["kept"] = True
+                stats = dict(uniform.stats, uniform_triangles=int(len(f0)),
+                             uniform_surface_to_mesh=uniform.surface_to_mesh, simplify=tried,
+                             triangles=int(len(f1)))
+                return SurfaceMesh(v1, f1, tol, max(a1, b1), a1, b1, uniform.cell, stats), True
+            if rnd == hold_rounds or eps == 0.0:
                 break
-            if b1 <= tol:
+            if a1 is not None and a1 > tol:      # its own triangles not certified
                 where = _balls(v1[f1[~(a <= tol)]], 2.0 * eps)
             else:
-                bad = ~(s0 + d01 <= tol)
+                bad = np.zeros(len(f0), bool)
+                bad[serves] = ~(s0s + d01 <= tol)
                 far_p = [(vp, fp[~(sp + d <= tol)]) for (vp, fp, sp), d in zip(patches, d_patches)]
                 # a triangle of the k-th level's patch has about 4**-k of a uniform one's area
                 n_far = int((hold | bad).sum()) + sum(len(f) / 4.0 ** k for k, (_, f) in enumerate(far_p, 1))
@@ -357,8 +405,8 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
         if stop:
             break
     ahead.clear()
-    for i in passed:        # the tolerances passed over, when none after them was kept
-        kept, _ = rounds(i, False)
+    for i in passed + ([len(FRACTIONS)] if as_is else []):    # the tolerances passed over, when none
+        kept, _ = rounds(i, False)                                  # after them was kept; the mesh as it is
         if kept is not None:
             return kept
     uniform.stats["simplify"] = tried
@@ -391,6 +439,7 @@ def typical_bound(uniform) -> float:
     if uniform.face_bounds is None:
         return uniform.surface_to_mesh
     every = np.concatenate([uniform.face_bounds] + [patch[2] for patch in uniform.patches])
+    every = every[~np.isnan(every)]         # faces that serve no surface point (a tile's caps)
     return float(np.quantile(every, BUDGET_QUANTILE)) if len(every) else uniform.surface_to_mesh
 
 

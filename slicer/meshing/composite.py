@@ -63,10 +63,11 @@ from slicer._kernels.meshing.nearest import GAP, distance_bounds
 from slicer._kernels.meshing.nearest import SLACK as DISTANCE_SLACK
 from slicer._kernels.meshing.winding import winding_numbers
 from slicer.arguments import integer, positive_number
-from slicer.errors import SceneError
+from slicer.errors import OptionError, SceneError
 from slicer.meshing.certificate import MeshField, SurfaceMesh
 from slicer.meshing.compact import MAX_CELLS, PIECES, mesh_to_mesh, simplified, triangle_bounds
-from slicer.meshing.surface import ATTEMPTS, DEFAULT_TOL, Band, lattice_of, mesh_scene, settle, uniform_mesh
+from slicer.meshing.cubes import Band, settle
+from slicer.meshing.surface import ATTEMPTS, DEFAULT_TOL, lattice_of, mesh_scene, uniform_mesh
 from slicer.meshing.unions import united_lattices
 from slicer.model.blend import check_blend
 from slicer.parts.part import Part, as_part
@@ -806,7 +807,7 @@ def _compact(lat: _Lattices, meshes: _Meshes, uniform: SurfaceMesh, tol: float) 
 
 
 def mesh_part(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attempts: int = ATTEMPTS,
-              compact: bool = True, blend: str = "sum") -> SurfaceMesh:
+              compact: bool = True, blend: str = "sum", tile: float | None = None, progress=None) -> SurfaceMesh:
     """Mesh a part's solid, lattice and meshes together, with a certified Hausdorff bound.
 
     Parameters
@@ -827,6 +828,11 @@ def mesh_part(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attemp
     blend : {"sum", "union"}
         The model's blend (:mod:`slicer.model.blend`); with ``union`` every strut's own
         solid unites (:mod:`slicer.meshing.unions`).
+    tile : float, mm, optional
+        A summed lattice without meshes: :func:`slicer.meshing.surface.mesh_scene`'s tiles
+        (others are meshed in one piece; asking for tiles there is an error).
+    progress : callable, optional
+        Called with a line of text as each tile is done.
 
     Returns
     -------
@@ -862,7 +868,10 @@ def mesh_part(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attemp
     skel = part.skeleton if part.skeleton is not None and part.skeleton.n_segments else None
     unites = skel is not None and (bool(getattr(skel, "groups", ())) or blend == "union")
     if not part.meshes and not unites:
-        return mesh_scene(part, tol=tol, cell=cell, attempts=attempts, compact=compact)
+        return mesh_scene(part, tol=tol, cell=cell, attempts=attempts, compact=compact, tile=tile, progress=progress)
+    if tile is not None:
+        raise OptionError(f"tiles mesh a summed lattice alone; this part has {part.describe()}"
+                          + (" with struts that unite" if unites else "") + ": mesh it without --tile")
     start = time.perf_counter()
     meshes = _Meshes(part)
     if skel is None:

@@ -29,6 +29,9 @@ from slicer.cli.commands.supports import pop_support_options, supports_for, supp
 @click.option("--uniform", is_flag=True,
               help="Keep the uniform mesh of marching tetrahedra: equal triangles everywhere, not simplified "
                    "(by default the certified uniform mesh is simplified and certified again).")
+@click.option("--tile", type=float, default=None, callback=positive, metavar="MM",
+              help="Mesh in tiles about this wide, one after the other, each simplified and certified, then "
+                   "united (default: tiles only when the lattice's band of cubes would not fit in memory).")
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="Threads (default: all cores).")
 @radius_option
 @part_options
@@ -36,7 +39,7 @@ from slicer.cli.commands.supports import pop_support_options, supports_for, supp
 @supports_options
 @click.option("--force", is_flag=True, help="Replace an existing output (never the input).")
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing on success.")
-def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_inside, clips_outside, repair, blend, force,
+def command(scene, out, tol, beams, uniform, tile, threads, radius, solids, clips_inside, clips_outside, repair, blend, force,
             quiet, **support_kw):
     """Mesh SCENE's surface with a certified Hausdorff bound, or write its skeleton as a 3MF beam lattice.
 
@@ -66,7 +69,8 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
             click.echo(f"beam lattice: {st['nodes']:,} nodes, {st['beams']:,} beams{extra} -> {out}")
         return
     with numba_threads(threads):
-        m = mesh_part(part, tol=tol, compact=not uniform, blend=blend)
+        m = mesh_part(part, tol=tol, compact=not uniform, blend=blend, tile=tile,
+                      progress=None if quiet else lambda line: click.echo(line, err=True))
     write_mesh(m.vertices, m.faces, out, force=force)
     st = m.stats
     if not quiet:
@@ -75,6 +79,7 @@ def command(scene, out, tol, beams, uniform, threads, radius, solids, clips_insi
                    f"{m.surface_to_mesh:.4g}; tolerance {tol:g})"
                    + (f", cubes of {m.cell:.4g} mm, {st['attempts']} attempt(s)" if "attempts" in st else "")
                    + (f" (finer where struts meet: {_finer(st['finer'])})" if st.get("finer") else "")
+                   + (f", in {len(st['tiles'])} tiles" if "tiles" in st else "")
                    + (f", {st['lattices']} summed lattices united" if st.get("lattices", 1) > 1 else "")
                    + (f", {st['cubes_near_meshes']:,} cubes and {st['probed_pieces']:,} triangle pieces checked "
                       f"where {_meeting(part, st)}" if "probed_pieces" in st else "")
