@@ -491,7 +491,8 @@ def mesh_tiles(fld: MeshField, tol: float, h: float, per_tile: int, progress=Non
     b_gone = _margins_to([(corners.reshape(-1, 3), np.arange(3 * len(corners)).reshape(-1, 3),
                            np.zeros(len(corners)))], v, f, reach, CUT_TARGET * tol, wedges=True)
     b_margin = _margins_to(margins, v, f, reach)
-    a_fresh, _ = triangle_bounds(fld, v, f[fresh], tol)
+    # (the work stops at the first batch with one not certified: the mesh is then not certified)
+    a_fresh, _ = triangle_bounds(fld, v, f[fresh], tol, int(PIECES * max(len(f), 1)), first_failure=True)
     a = max([r["mesh_to_surface"] for r in rows] + [float(a_fresh.max(initial=0.0))])
     b = max(max([r["surface_to_mesh"] for r in rows], default=0.0) + b_gone, b_margin)
     stats = {"tiles": rows, "coarse_per_tile": int(per_tile), "margin_faces": int(sum(len(m[1]) for m in margins)),
