@@ -20,16 +20,20 @@ bound, each as a ratio.
 Scenes: three tapered struts and a needle (0.6 -> 0.08 mm) at tol 0.02 mm and the sample
 cubic_2x2x2 at 0.05 mm. ``--dense`` adds the dense lattice octet_2x2x2 (240 struts) and the
 microstructure sample (2,976 struts, 27 mm) at 0.1 mm, compact meshes only (the uniform mesh
-they come from is in their rows) and level sets at 4 and 8 times their cube: they take
-minutes each. ``--quick``: the first two only.
+they come from is in their rows) and level sets at 4, 8 and 16 times their finest cube (those
+on grids of more than 20 million points skipped): they take minutes each. ``--quick``: the first two only. The JSON rows of the certified meshes also say
+whether each is watertight and consistently wound (trimesh), and the process's peak resident
+memory so far (``peak_rss_gb``: the meshing's own for the first row of a run).
 """
 from __future__ import annotations
 
 import argparse
+import resource
 import sys
 import time
 
 import numpy as np
+import trimesh
 
 from sample_lattices import load_sample
 from slicer import Skeleton
@@ -50,6 +54,12 @@ def measured_error(skel, vertices, faces, seed=0):
     return float((np.abs(f - 1.0) / np.linalg.norm(g, axis=1)).max())
 
 
+def closed(m):
+    """Whether the mesh is watertight and consistently wound (trimesh's checks)."""
+    t = trimesh.Trimesh(m.vertices, m.faces, process=False)
+    return {"watertight": bool(t.is_watertight), "winding_consistent": bool(t.is_winding_consistent)}
+
+
 def scenes(quick, dense=False):
     out = [("3 struts", Skeleton([[0, 0, 0], [3, 0, 0], [3, 3, 1], [0, 3, 2]], [[0, 1], [1, 2], [2, 3]],
                                  [[0.5, 0.3], [0.3, 0.45], [0.45, 0.6]]), 0.02),
@@ -63,6 +73,9 @@ def scenes(quick, dense=False):
 
 #: scenes meshed compact only, with coarse level sets (their uniform certified mesh is in the compact row)
 LARGE = ("octet_2x2x2", "microstructure")
+#: level sets on grids of more points are skipped (the microstructure's at 4 times its finest cube:
+#: 60 million points, and memory beyond 23 GB)
+MAX_LEVEL_SET_POINTS = 2e7
 
 
 def run(quick, dense=False, only=None):
@@ -74,7 +87,8 @@ def run(quick, dense=False, only=None):
         for method, compact in ((("certified uniform", False),) if not large else ()) + (("certified", True),):
             t0 = time.perf_counter()
             try:
-                m = mesh_scene(skel, tol=tol, compact=compact)
+                m = mesh_scene(skel, tol=tol, compact=compact,
+                               progress=lambda line: print(f"{name}: {line}", file=sys.stderr, flush=True))
             except OptionError as err:      # beyond the band's memory limit: the refusal is the result
                 rows.append({"scene": name, "method": "refused", "tol": tol, "seconds": round(time.perf_counter() - t0, 2),
                              "message": str(err)})
@@ -88,12 +102,19 @@ def run(quick, dense=False, only=None):
                     "attempts": m.stats["attempts"], "band_cubes": m.stats["band_cubes"],
                     "uniform_triangles": m.stats.get("uniform_triangles", int(len(m.faces))),
                     "finer_cubes": sum(level["cubes"] for level in m.stats.get("finer", [])),
-                    "tiles": len(m.stats.get("tiles", ()))}
+                    "tiles": len(m.stats.get("tiles", ())), **closed(m),
+                    "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6}
             rows.append(ours)
             print(ours, file=sys.stderr, flush=True)
         # level sets from the finest cube side used (a graded mesh's finer cubes)
         finest = None if m is None else min([m.cell] + [level["cube"] for level in m.stats.get("finer", [])])
-        for k in () if m is None else (4.0, 8.0) if large else (1.5, 2.5, 4.0, 8.0):
+        for k in () if m is None else (4.0, 8.0, 16.0) if large else (1.5, 2.5, 4.0, 8.0):
+            lo, hi = skel.support_bounds()
+            points = float(np.prod(np.ceil((hi - lo) / (finest * k)) + 3))
+            if points > MAX_LEVEL_SET_POINTS:       # its grid and triangles would not fit in memory
+                print(f"{name}: level set at {finest * k:.4g} mm skipped ({points:.3g} grid points)",
+                      file=sys.stderr, flush=True)
+                continue
             t0 = time.perf_counter()
             man, info = reference_mesh(skel, finest * k, with_error=False)
             secs = time.perf_counter() - t0

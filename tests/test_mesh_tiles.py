@@ -111,17 +111,77 @@ def tiled():
 def test_a_tiled_mesh_passes_the_acceptance_check(tiled):
     skel, m = tiled
     assert len(m.stats["tiles"]) > 8 and m.stats["coarse_per_tile"] == 1
-    # seams where the tiles' caps differ, certified on the field, and margins measured to the union
-    assert m.stats["fresh_triangles"] > 0 and m.stats["margin_faces"] > 0
+    # margins measured to the union (the seams' faces are held, so the union adds few triangles of its own)
+    assert m.stats["margin_faces"] > 0
     assert_certified_mesh(skel, m, 0.08)
 
 
-def test_tiles_give_the_same_mesh_on_any_thread_count(tiled):
+def test_tiles_are_simplified_and_meet_along_their_seams(tiled):
+    """Each tile is simplified within its own share of the tolerance (pieces split until certified
+    within it, the uniform faces' distances aimed below it), and holds its seam's faces: the
+    tiles' cuts meet, so the union adds almost no triangles of its own, and no tile falls back to
+    its uniform mesh (certifying at the job's tolerance, or with slivers of caps between the
+    tiles, thousands of the union's triangles here were its own, and tiles kept their uniform mesh)."""
+    _, m = tiled
+    simplified = [tile["simplify"] for tile in m.stats["tiles"] if tile["simplify"]]
+    assert len(simplified) > 8
+    assert all(rows[-1]["kept"] and rows[-1]["eps"] > 0 and rows[-1]["seam"] > 0 for rows in simplified)
+    assert m.stats["fresh_triangles"] < 0.01 * len(m.faces)
+    # a bound is within the tile's share or not certified (inf): none falls between it and the tolerance
+    inner = (1.0 - tiles.SEAM_SHARE) * 0.08
+    assert not any(inner < row.get("mesh_to_surface", 0.0) <= 0.08 for rows in simplified for row in rows)
+
+
+def test_seam_faces_touch_the_box():
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [3, 0, 0], [2, 1, 0], [0.5, 2, 0], [1.5, 2, 0]])
+    f = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 2]])
+    lo, hi = np.array([1.0, -5, -5]), np.array([5.0, 5, 5])
+    # a vertex on the plane x = 1, one well inside the box, one crossing x = 1
+    assert tiles.seam_faces(v, f, lo, hi, 0.1).tolist() == [True, False, True]
+    # a face that stops short of the plane by more than SEAM_REACH of a cube
+    assert tiles.seam_faces(v - [0.002, 0, 0], f, lo, hi, 0.1).tolist() == [False, False, True]
+    # the same on the box's upper planes, along each axis
+    for axis in range(3):
+        turn = np.roll(np.eye(3), axis, axis=1)
+        w = (np.array([6.0, 0, 0]) - v) @ turn
+        top, bottom = np.roll([1.0, 5, 5], axis) + 5.0, np.roll([-5.0, -5, -5], axis)
+        assert tiles.seam_faces(w, f, bottom, top, 0.1).tolist() == [True, False, True]
+
+
+@pytest.mark.parametrize("split", ["tiles at once", "threads in a tile"])
+def test_tiles_give_the_same_mesh_on_any_thread_count(tiled, monkeypatch, split):
     skel, one = tiled
+    if split == "threads in a tile":
+        monkeypatch.setattr(tiles, "tile_threads", lambda n: (1, 2))
     with numba_threads(2):
         two = mesh_scene(skel, tol=0.08, tile=0.5)
     assert np.array_equal(one.vertices, two.vertices) and np.array_equal(one.faces, two.faces)
     assert one.bound == two.bound
+
+
+def test_a_refused_tile_raises_in_its_turn(monkeypatch):
+    """A tile refused on a worker thread raises its error where it comes in the tiles' order; the
+    tiles before it are reported done, and those after it stop."""
+    real, calls = tiles._tile_simplified, []
+
+    def refuse_the_third(fld, closed, planes, lo_mm, hi_mm, tol, reach):
+        calls.append(lo_mm)
+        if len(calls) == 3:
+            return None
+        return real(fld, closed, planes, lo_mm, hi_mm, tol, reach)
+
+    monkeypatch.setattr(tiles, "_tile_simplified", refuse_the_third)
+    monkeypatch.setattr(tiles, "tile_threads", lambda n: (1, 1))
+    lines = []
+    with pytest.raises(OptionError, match="no simplification of its mesh could be certified within 0.0582 mm"):
+        mesh_scene(struts(), tol=0.06, tile=1.5, progress=lines.append)
+    assert len(calls) == 3 and len(lines) >= 2 and all(line.startswith("tile ") for line in lines)
+    monkeypatch.setattr(tiles, "tile_threads", lambda n: (2, 1))
+    calls.clear()
+    with pytest.raises(OptionError, match="no simplification"):
+        mesh_scene(struts(), tol=0.06, tile=1.5)
+    # the tiles after the refused one stopped: far fewer simplified than the 15 of the whole job
+    assert len(calls) <= 5
 
 
 def test_mesh_scene_tiles_a_band_that_would_not_fit(monkeypatch):

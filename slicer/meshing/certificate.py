@@ -8,6 +8,7 @@ docstring, step 3); :class:`SurfaceMesh` is the result of both meshers.
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -154,7 +155,8 @@ def straight_chains(skel: Skeleton) -> Skeleton:
 
 class MeshField:
     """The field of one skeleton, with the support grid of its straight runs
-    (:func:`straight_chains`, for the ball bounds) and counters."""
+    (:func:`straight_chains`, for the ball bounds) and counters (kept right when tiles are
+    meshed on several threads, :mod:`slicer.meshing.tiles`)."""
 
     def __init__(self, skel: Skeleton):
         self.skel = skel
@@ -162,14 +164,20 @@ class MeshField:
         self.table, self.grid = point_grid(self.lines)
         self.points = 0
         self.balls = 0
+        self._counting = threading.Lock()
+
+    def _count(self, points: int = 0, balls: int = 0):
+        with self._counting:
+            self.points += points
+            self.balls += balls
 
     def values(self, p: np.ndarray, gradient: bool = False):
-        self.points += len(p)
+        self._count(points=len(p))
         return evaluate(self.skel, p, gradient=gradient)
 
     def balls_bounds(self, centres: np.ndarray, radii: np.ndarray, normals: np.ndarray | None = None):
         """``(U, L, H, H_P)`` over the balls (:func:`slicer._kernels.meshing.ballbounds.ball_bounds`)."""
-        self.balls += len(centres)
+        self._count(balls=len(centres))
         g, s = self.grid, self.lines
         nu = np.zeros((len(centres), 3)) if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
         return ball_bounds(self.table, g.offsets, g.ids, g.origin, g.cell, g.dims,

@@ -251,7 +251,7 @@ def _balls(tri: np.ndarray, margin: float):
 
 def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface, target: float | None = None,
                wedges: bool | None = None, hold_rounds: int = HOLD_ROUNDS, on_surface=None, planes=None,
-               as_is: bool = False, tidy=None, surface_first: bool = False):
+               as_is: bool = False, tidy=None, surface_first: bool = False, seam: np.ndarray | None = None):
     """The loop of :func:`compact` (and of a part's, :mod:`slicer.meshing.composite`): ``uniform`` simplified to
     fractions of ``budget``; surface to mesh by the distances from ``uniform`` to the result
     (pieces split while above ``target``, by default ``reach − uniform.surface_to_mesh``; nothing
@@ -267,7 +267,10 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
     is kept of each simplification (and of ``uniform`` as it is), (v1, f1): a tile's, cut by its box.
     With ``surface_first``, a simplification's own triangles are certified first, and its
     distances from ``uniform`` bounded only when they are (a tile's: where the curvature bounds
-    are large, most tolerances fail there, and the distances cost more).
+    are large, most tolerances fail there, and the distances cost more). The faces of ``seam``, a
+    (t,) bool mask over ``uniform``'s faces, are held as they are in every simplification (a
+    tile's, by the faces of its box: the tiles on either side then meet along the same curve);
+    rows count them apart (``seam``) from the faces held where a round did not certify (``held``).
 
     Where a simplification is not certified (uniform triangles too far from it, or its own
     triangles not certified on the surface), the uniform triangles near those places are held
@@ -297,7 +300,7 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
     def plain(i):
         if i not in ahead:
             start = time.perf_counter()
-            mesh = (v0, f0) if i == len(FRACTIONS) else simplify(v0, f0, FRACTIONS[i] * budget, planes=planes)
+            mesh = (v0, f0) if i == len(FRACTIONS) else simplify(v0, f0, FRACTIONS[i] * budget, seam, planes)
             ahead[i] = made(*mesh) + (time.perf_counter() - start,)
         return ahead[i]
 
@@ -312,12 +315,14 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
         for rnd in range(hold_rounds + 1):
             if hold.any():
                 start = time.perf_counter()
-                v1, f1 = made(*simplify(v0, f0, eps, hold, planes))
+                v1, f1 = made(*simplify(v0, f0, eps, hold if seam is None else hold | seam, planes))
             else:                   # made now, or ahead while the last tolerance was looked at
                 v1, f1, took = plain(i)
                 ahead.pop(i, None)
                 start = time.perf_counter() - took
             row = {"eps": eps, "triangles": int(len(f1)), "held": int(hold.sum()), "kept": False}
+            if seam is not None:
+                row["seam"] = int(seam.sum())
             tried.append(row)
             small = 0 < len(f1) <= GAIN * len(f0) or (eps == 0.0 and len(f1) > 0)
             if rnd == 0 and look_ahead and i + 1 < len(FRACTIONS) and len(f1):
@@ -390,7 +395,8 @@ def simplified(uniform, tol: float, budget: float, reach: float, mesh_to_surface
                          else (np.zeros((0, 3)), np.zeros(0)))
             if centroids is None:
                 centroids = v0[f0].mean(axis=1)
-            more = within(centroids, *where) & ~hold
+            # (the seam's faces are held in every round already)
+            more = within(centroids, *where) & ~(hold if seam is None else hold | seam)
             # held uniform triangles stay small: worth it only while they are few beside the
             # simplified mesh's (a smaller tolerance roughly doubles its count instead)
             if not more.any() or int(hold.sum() + more.sum()) > HOLD_SHARE * len(f1):

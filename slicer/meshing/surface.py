@@ -270,10 +270,11 @@ def mesh_scene(scene, tol: float = DEFAULT_TOL, cell: float | None = None, attem
         (:mod:`slicer.meshing.compact`): far fewer triangles within the same
         tolerance. False keeps the uniform mesh of marching tetrahedra.
     tile : float, mm, optional
-        Mesh in tiles about this wide, one after the other (:mod:`slicer.meshing.tiles`; the
-        simplified mesh only). By default a lattice whose band of cubes, estimated, is more
-        than :data:`slicer.meshing.tiles.TILED_SHARE` of the memory's is meshed in tiles
-        sized to it; others in one piece, with smaller cubes at each attempt.
+        Mesh in tiles about this wide, as many at once as this thread's Numba threads
+        (:mod:`slicer.meshing.tiles`; the simplified mesh only). By default a lattice whose
+        band of cubes, estimated, is more than :data:`slicer.meshing.tiles.TILED_SHARE` of the
+        memory's is meshed in tiles sized to it; others in one piece, with smaller cubes at
+        each attempt.
     progress : callable, optional
         Called with a line of text as each tile is done.
 

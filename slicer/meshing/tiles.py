@@ -1,7 +1,7 @@
 """A lattice meshed tile by tile, for a band of cubes too large to hold at once (docs/mesh.md, step 5).
 
 One grid of cubes covers the lattice (:func:`slicer.meshing.cubes._grid`); it is
-cut into *tiles*, boxes of its coarse cubes, meshed one after the other:
+cut into *tiles*, boxes of its coarse cubes, each meshed on its own:
 
 1. the band cubes of the tile's box widened by an *overlap* (:func:`overlap`);
    marching tetrahedra on all of them; the tile's own cubes certified (the
@@ -11,9 +11,11 @@ cut into *tiles*, boxes of its coarse cubes, meshed one after the other:
 2. the widened box's solid closed by *caps* on its faces (:func:`caps`):
    marching triangles on the faces' grid points, triangulated again from their
    boundaries;
-3. simplified, cut by the tile's own box (:func:`cut`) and certified
-   (:func:`slicer.meshing.compact.simplified`) against its triangles off the
-   box's faces. What the simplifier does by the caps stays in the overlap.
+3. simplified, its faces by the box's planes held as they are (:func:`seam_faces`:
+   neighbouring tiles are then cut along the same curve), cut by the tile's own box
+   (:func:`cut`) and certified (:func:`slicer.meshing.compact.simplified`) against
+   its triangles off the box's faces, within (1 − :data:`SEAM_SHARE`) of the
+   tolerance. What the simplifier does by the caps stays in the overlap.
 
 The tiles' solids ``A_i`` are united (manifold3d). The result ``U`` is certified
 as a whole:
@@ -27,21 +29,26 @@ as a whole:
 * every triangle of ``U`` that is not one of the ``A_i``'s certified ones
   (pieces of the cuts where two tiles' cuts differ) is certified on the field.
 
-Everything is deterministic: tiles go in order, one after the other.
+Everything is deterministic: the tiles are meshed on threads (:func:`tile_threads`), each on its
+own, and united in their order.
 """
 from __future__ import annotations
 
 import math
+import threading
 import time
+from typing import NamedTuple
 
 import manifold3d
 import numpy as np
 
+from slicer._kernels.runtime.launch import numba_threads
 from slicer.errors import OptionError
 from slicer.meshing.certificate import MeshField, SurfaceMesh
 from slicer.meshing.compact import PIECES, mesh_to_mesh, simplified, triangle_bounds, typical_bound
 from slicer.meshing.cubes import (CHUNK, FINER_SHARE, MAX_BAND, _band, _cube_bounds, _face_bounds, _finer, _Grid, _grid,
                                   _mesh_band, _surface_to_mesh, edge_keys, point_keys)
+from slicer.scale.ordered_map import map_in_order
 
 #: a tile's band, estimated, is at most this share of MAX_BAND (its finer cubes and triangles take the rest)
 TILE_SHARE = 1 / 8
@@ -401,25 +408,115 @@ def frozen(planes: np.ndarray) -> np.ndarray:
 
 def _tile_simplified(fld: MeshField, closed: SurfaceMesh, planes: np.ndarray, lo_mm: np.ndarray,
                      hi_mm: np.ndarray, tol: float, reach: float):
-    """A tile's closed mesh simplified and certified (step 3): the SurfaceMesh kept, or None."""
+    """A tile's closed mesh simplified and certified (step 3): the SurfaceMesh kept, or None.
+    Certified within (1 − :data:`SEAM_SHARE`) ``tol``: the rest is room for what the union changes
+    by the boxes' faces."""
     on_surface = off_box_faces(lo_mm, hi_mm)
+    inner = (1.0 - SEAM_SHARE) * tol
 
     def on_field(v1, f1, row):
         keep = on_surface(v1, f1)
         out = np.zeros(len(f1))
-        out[keep], n_pieces = triangle_bounds(fld, v1, f1[keep], tol, int(PIECES * len(closed.faces)),
+        # pieces split until certified within the tile's own tolerance, not the job's
+        out[keep], n_pieces = triangle_bounds(fld, v1, f1[keep], inner, int(PIECES * len(closed.faces)),
                                               row["first_failure"])
         row["certified_pieces"] = int(n_pieces)
         return out
 
-    # certified with room for what the union changes by the boxes' faces (SEAM_SHARE)
-    return simplified(closed, (1.0 - SEAM_SHARE) * tol, reach - typical_bound(closed), reach, on_field,
-                      on_surface=on_surface,
-                      planes=frozen(planes), as_is=True, tidy=cut(lo_mm, hi_mm), surface_first=True)
+    # the distances from the uniform faces are bounded within the tile's tolerance too
+    reach = min(reach, inner)
+    return simplified(closed, inner, reach - typical_bound(closed), reach, on_field, on_surface=on_surface,
+                      planes=frozen(planes), as_is=True, tidy=cut(lo_mm, hi_mm), surface_first=True,
+                      seam=seam_faces(closed.vertices, closed.faces, lo_mm, hi_mm, closed.cell))
+
+
+#: a uniform face is on a tile's seam when it comes this share of a cube's side near a face of its box
+SEAM_REACH = 0.01
+
+
+def seam_faces(v: np.ndarray, f: np.ndarray, lo: np.ndarray, hi: np.ndarray, h: float) -> np.ndarray:
+    """The uniform faces a tile holds as they are (:func:`slicer.meshing.compact.simplified`'s ``seam``):
+    those that touch or cross a plane of its box's faces, the whole plane (those out of the box
+    are cut away with the overlap) (vertices ``v`` (p, 3) mm, faces ``f`` (t, 3), box ``lo``,
+    ``hi`` (3,) mm, cubes of ``h`` mm); (t,) bool. The box's faces are planes of the grid, and the cubes'
+    marching tetrahedra meet such a plane along the marching triangles of its grid points: so
+    two tiles that both hold these faces are cut along the same curve, and their union adds no
+    sliver of cap there (that it would certify on the field)."""
+    tri = v[f]
+    low, high = tri.min(axis=1), tri.max(axis=1)
+    near = SEAM_REACH * h
+    out = np.zeros(len(f), bool)
+    for plane in (lo, hi):
+        out |= ((low <= plane + near) & (high >= plane - near)).any(axis=1)
+    return out
+
+
+class _Tile(NamedTuple):
+    """What one tile gives the union (:func:`_one_tile`)."""
+    #: the tile's stats row
+    row: dict
+    #: faces out of its box, and finer patches, measured against the union ((vertices, faces, bounds) each)
+    margins: list
+    #: its cut solid, or None (no solid in the box)
+    kept: SurfaceMesh | None
+    #: its certified triangles' rows (:func:`_rows`) and corners (k, 3, 3) mm, or None (none certified)
+    certified: tuple | None
+
+
+def _one_tile(fld: MeshField, grid: _Grid, lo: np.ndarray, hi: np.ndarray, tol: float, reach: float,
+              stop=None) -> _Tile | None:
+    """The tile (lo, hi) meshed, simplified, cut and certified (steps 1 to 3 of the module's
+    docstring); None when ``stop()`` is true before its simplification (a tile before it was
+    refused)."""
+    row = {"box": [lo.tolist(), hi.tolist()]}
+    closed, planes, margins = tile_mesh(fld, grid, lo, hi, tol, row)
+    if stop is not None and stop():
+        return None
+    if closed is None:
+        return _Tile(row, margins, None, None)
+    lo_mm, hi_mm = grid.points(np.stack([lo, hi]))
+    certified = None
+    if np.isnan(closed.face_bounds).all():
+        # none of the tile's own faces: its solid is cut, not simplified; its finer patches (the
+        # surface the cubes missed) are measured against the union, and its triangles certified there
+        margins = margins + closed.patches
+        v1, f1 = cut(lo_mm, hi_mm)(closed.vertices, closed.faces)
+        if not len(f1):
+            return _Tile(row, margins, None, None)
+        kept = SurfaceMesh(v1, f1, tol, 0.0, 0.0, 0.0, grid.h, {})
+    else:
+        kept = _tile_simplified(fld, closed, planes, lo_mm, hi_mm, tol, reach)
+        if kept is None:
+            raise OptionError(f"the tile {row['box']} of {grid.h:.4g} mm cubes: no simplification of its mesh "
+                              f"could be certified within {(1.0 - SEAM_SHARE) * tol:.4g} mm ({1.0 - SEAM_SHARE:.0%} "
+                              f"of the tolerance, the rest left for the seams); ask for a larger --tol")
+        surface = off_box_faces(lo_mm, hi_mm)(kept.vertices, kept.faces)
+        certified = (_rows(kept.vertices, kept.faces[surface]), kept.vertices[kept.faces[surface]])
+    row.update(triangles_kept=int(len(kept.faces)), mesh_to_surface=kept.mesh_to_surface,
+               surface_to_mesh=kept.surface_to_mesh, simplify=kept.stats.get("simplify"))
+    return _Tile(row, margins, kept, certified)
+
+
+#: most tiles meshed at once: each holds its band (estimated at most TILE_SHARE of MAX_BAND) and its
+#: finer cubes, so the memory's limit is shared between them
+TILES_AT_ONCE = 2
+
+
+def tile_threads(tiles: int) -> tuple[int, int]:
+    """Tiles meshed at once, and Numba threads each: as many tiles as this thread's Numba threads
+    (``--threads``), at most ``tiles`` and :data:`TILES_AT_ONCE`; the threads shared between
+    them. The threads pay where the Numba kernels and numpy release the GIL (manifold3d's
+    simplifications and cuts hold it: they go one at a time)."""
+    with numba_threads(None) as threads:
+        workers = max(1, min(int(threads), int(tiles), TILES_AT_ONCE))
+    return workers, max(1, int(threads) // workers)
 
 
 def mesh_tiles(fld: MeshField, tol: float, h: float, per_tile: int, progress=None) -> SurfaceMesh:
     """The lattice's compact certified mesh, made tile by tile (the module's docstring).
+
+    The tiles are meshed on :func:`tile_threads` threads and united in their order: the mesh is
+    the same on any thread count.
 
     Parameters
     ----------
@@ -430,7 +527,7 @@ def mesh_tiles(fld: MeshField, tol: float, h: float, per_tile: int, progress=Non
     per_tile : int
         Coarse cubes per tile side (:func:`coarse_per_tile`).
     progress : callable, optional
-        Called with a line of text as each tile is done.
+        Called with a line of text as each tile is done, in the tiles' order.
 
     Raises
     ------
@@ -442,35 +539,41 @@ def mesh_tiles(fld: MeshField, tol: float, h: float, per_tile: int, progress=Non
     reach = min(tol, float(fld.skel.radii.min()))
     solids, certified_rows, margins, rows = [], [], [], []
     boxes = tile_boxes(grid, per_tile)
-    for number, (lo, hi) in enumerate(boxes, 1):
-        row = {"box": [lo.tolist(), hi.tolist()]}
-        closed, planes, margin = tile_mesh(fld, grid, lo, hi, tol, row)
-        margins += margin       # measured against the union, whatever the tile keeps
-        if closed is None:
+    workers, each = tile_threads(len(boxes))
+    # the first tile refused: the tiles after it stop at their next step (those before it go on,
+    # so the error raised is the first tile's in order, as on one thread)
+    refused, lock = [len(boxes)], threading.Lock()
+
+    def one(item):
+        number, (lo, hi) = item
+
+        def stop():
+            return refused[0] < number
+        if stop():
+            return None
+        try:
+            with numba_threads(each):
+                return _one_tile(fld, grid, lo, hi, tol, reach, stop)
+        except BaseException:
+            with lock:
+                refused[0] = min(refused[0], number)
+            raise
+
+    # ``workers`` tiles (and bands) in the making at once; finished ones wait to be united in order
+    for number, (_, tile) in enumerate(map_in_order(one, enumerate(boxes), workers, name="tile"), 1):
+        if tile is None:            # stopped: a tile before it was refused, and raises at its turn
             continue
-        lo_mm, hi_mm = grid.points(np.stack([lo, hi]))
-        if np.isnan(closed.face_bounds).all():
-            # none of the tile's own faces: its solid is cut, not simplified; its finer patches (the
-            # surface the cubes missed) are measured against the union, and its triangles certified there
-            margins += closed.patches
-            v1, f1 = cut(lo_mm, hi_mm)(closed.vertices, closed.faces)
-            if not len(f1):
-                continue
-            kept = SurfaceMesh(v1, f1, tol, 0.0, 0.0, 0.0, grid.h, {})
-        else:
-            kept = _tile_simplified(fld, closed, planes, lo_mm, hi_mm, tol, reach)
-            if kept is None:
-                raise OptionError(f"the tile {row['box']} of {grid.h:.4g} mm cubes: no simplification of its mesh "
-                                  f"could be certified within {tol:.4g} mm; ask for a larger --tol")
-            surface = off_box_faces(lo_mm, hi_mm)(kept.vertices, kept.faces)
-            certified_rows.append((_rows(kept.vertices, kept.faces[surface]), kept.vertices[kept.faces[surface]]))
+        margins += tile.margins     # measured against the union, whatever the tile keeps
+        if tile.kept is None:
+            continue
+        kept = tile.kept
+        if tile.certified is not None:
+            certified_rows.append(tile.certified)
         solids.append(manifold3d.Manifold(manifold3d.Mesh64(vert_properties=kept.vertices,
                                                             tri_verts=kept.faces.astype(np.uint64))))
-        row.update(triangles_kept=int(len(kept.faces)), mesh_to_surface=kept.mesh_to_surface,
-                   surface_to_mesh=kept.surface_to_mesh, simplify=kept.stats.get("simplify"))
-        rows.append(row)
+        rows.append(tile.row)
         if progress is not None:
-            progress(f"tile {number} of {len(boxes)}: {row['band_cubes']:,} band cubes, {len(kept.faces):,} "
+            progress(f"tile {number} of {len(boxes)}: {tile.row['band_cubes']:,} band cubes, {len(kept.faces):,} "
                      f"triangles kept, {time.perf_counter() - start:.0f} s")
     united = manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add) if solids else manifold3d.Manifold()
     if united.status() != manifold3d.Error.NoError:

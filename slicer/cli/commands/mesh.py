@@ -30,7 +30,7 @@ from slicer.cli.commands.supports import pop_support_options, supports_for, supp
               help="Keep the uniform mesh of marching tetrahedra: equal triangles everywhere, not simplified "
                    "(by default the certified uniform mesh is simplified and certified again).")
 @click.option("--tile", type=float, default=None, callback=positive, metavar="MM",
-              help="Mesh in tiles about this wide, one after the other, each simplified and certified, then "
+              help="Mesh in tiles about this wide, as many at once as --threads, each simplified and certified, then "
                    "united (default: tiles only when the lattice's band of cubes would not fit in memory).")
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="Threads (default: all cores).")
 @radius_option
