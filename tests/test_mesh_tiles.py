@@ -90,7 +90,7 @@ def test_tiles_cut_the_uniform_mesh():
     check_tiles_cut_the_uniform_mesh(struts(), 0.06, 2)
 
 
-@settings(max_examples=3, deadline=None)
+@settings(max_examples=2, deadline=None)
 @given(seed=st.integers(0, 10_000), per_tile=st.integers(1, 3))
 def test_tiles_cut_the_uniform_mesh_of_random_struts(seed, per_tile):
     rng = np.random.default_rng(seed)
