@@ -532,7 +532,8 @@ def mesh_tiles(fld: MeshField, tol: float, h: float, per_tile: int, progress=Non
     Raises
     ------
     OptionError
-        A tile not certified (:func:`tile_mesh`), or its simplification not certified within ``tol``.
+        A tile not certified (:func:`tile_mesh`), or its simplification not certified within its
+        share of ``tol`` (1 − :data:`SEAM_SHARE`); the first such tile in the tiles' order.
     """
     start = time.perf_counter()
     grid = _grid(fld.skel, h)
